@@ -1,0 +1,52 @@
+"""taichi_anim: a Taichi-based particle and cloth animation engine.
+
+build (Builder) -> model + state -> integrators step the state -> read-only output (snapshots, export).
+Taichi is never initialised on import: call `taichi_anim.init(arch=...)`, or let `Builder.finalize()`
+start it on the CPU.
+"""
+
+from .builder import Builder
+from .collision import CollisionMode
+from .errors import DivergenceError, ParameterError
+from .integrators import (
+    INTEGRATORS,
+    Integrator,
+    IntegratorAdaptive,
+    IntegratorExplicitEuler,
+    IntegratorImplicitEuler,
+    IntegratorMidpoint,
+    IntegratorRK4,
+    IntegratorRK45,
+    IntegratorSymplecticEuler,
+    make_integrator,
+)
+from .model import Model
+from .particles import EmitterShape
+from .runtime import backend_name, init, is_initialized
+from .state import ParticleSnapshot, State
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "INTEGRATORS",
+    "Builder",
+    "CollisionMode",
+    "DivergenceError",
+    "EmitterShape",
+    "Integrator",
+    "IntegratorAdaptive",
+    "IntegratorExplicitEuler",
+    "IntegratorImplicitEuler",
+    "IntegratorMidpoint",
+    "IntegratorRK4",
+    "IntegratorRK45",
+    "IntegratorSymplecticEuler",
+    "Model",
+    "ParameterError",
+    "ParticleSnapshot",
+    "State",
+    "backend_name",
+    "init",
+    "is_initialized",
+    "make_integrator",
+]

@@ -1,0 +1,228 @@
+"""Builder: collects what a scene has in plain Python and NumPy; `finalize()` allocates every Taichi
+field once, exactly sized (Warp's `ModelBuilder.finalize()`). The engine is Y-up, SI units."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import validate
+from .collision import ColliderPlane, ColliderSolidBox
+from .errors import ParameterError
+from .forces import AnchorSpring, Drag, Gravity
+from .model import Model
+from .particles import Emitter, EmitterShape
+from .particles.emitters import EmitterSettings
+from .runtime import ensure_initialized
+
+
+class Builder:
+    """Scene description: particles, emitters, force terms, colliders, trails."""
+
+    def __init__(self) -> None:
+        self._x: list[np.ndarray] = []
+        self._v: list[np.ndarray] = []
+        self._m: list[np.ndarray] = []
+        self._emitters: list[EmitterSettings] = []
+        self._gravity: tuple | None = None
+        self._drag: list[tuple[float, tuple]] = []
+        self._anchor_springs: list[tuple] = []
+        self._colliders: list = []
+        self._trail_length = 0
+
+    @property
+    def particle_count(self) -> int:
+        """Particles added so far (emitter slots not included)."""
+        return sum(len(a) for a in self._x)
+
+    def add_particles(self, x, v=None, mass=1.0) -> range:
+        """Add particles: x (N,3) [m], v (N,3) [m/s] (default 0), mass [kg] scalar or (N,); mass 0 pins
+        a particle. Returns their indices."""
+        x = validate.finite_array("x", np.atleast_2d(x), (3,))
+        v = np.zeros_like(x) if v is None else validate.finite_array("v", np.atleast_2d(v), (3,))
+        if v.shape != x.shape:
+            raise ParameterError(f"v must have the shape of x {x.shape}, got {v.shape}")
+        m = np.broadcast_to(np.asarray(mass, dtype=np.float64), (len(x),)).copy()
+        if not np.all(np.isfinite(m)) or np.any(m < 0):
+            raise ParameterError(f"mass must be finite and >= 0 (0 pins a particle), got {mass!r}")
+        start = self.particle_count
+        self._x.append(x)
+        self._v.append(v)
+        self._m.append(m)
+        return range(start, start + len(x))
+
+    def add_particle(self, x, v=(0.0, 0.0, 0.0), mass: float = 1.0) -> int:
+        """Add one particle and return its index."""
+        return self.add_particles([x], [v], mass)[0]
+
+    def add_particle_emitter(
+        self,
+        *,
+        capacity: int,
+        rate: float,
+        shape: EmitterShape | str = EmitterShape.POINT,
+        center=(0.0, 0.0, 0.0),
+        radius: float = 0.0,
+        half_extents=(0.0, 0.0, 0.0),
+        direction=(0.0, 1.0, 0.0),
+        speed: float = 1.0,
+        speed_jitter: float = 0.0,
+        spread: float = 0.0,
+        lifetime: float = 1.0,
+        lifetime_jitter: float = 0.0,
+        mass: float = 1.0,
+        color_start=(1.0, 0.9, 0.3),
+        color_end=(0.8, 0.1, 0.05),
+    ) -> int:
+        """Add an emitter with its own pool of `capacity` slots (Reeves 1983).
+
+        rate [particles/s]; shape point/disc/sphere/box; radius [m] (disc, sphere); half_extents [m] (box);
+        direction: mean velocity direction (disc normal); speed [m/s] with relative speed_jitter; spread:
+        cone half-angle [rad]; lifetime [s] with relative lifetime_jitter; mass [kg]; colours RGB in [0,1]
+        at birth and death. Returns the emitter index.
+        """
+        try:
+            shape = EmitterShape(shape) if isinstance(shape, str) else shape
+        except ValueError:
+            validate.choice("emitter shape", shape, [s.value for s in EmitterShape])
+        capacity = validate.count("capacity", capacity, 1)
+        size = (validate.non_negative("radius", radius), 0.0, 0.0)
+        if shape == EmitterShape.BOX:
+            size = validate.vec3("half_extents", half_extents)
+            if min(size) < 0:
+                raise ParameterError(f"half_extents must be >= 0, got {half_extents!r}")
+        settings = EmitterSettings(
+            shape=shape,
+            center=validate.vec3("center", center),
+            size=size,
+            direction=validate.unit3("direction", direction),
+            rate=validate.non_negative("rate", rate),
+            speed=validate.non_negative("speed", speed),
+            speed_jitter=validate.in_range("speed_jitter", speed_jitter, 0.0, 1.0),
+            spread=validate.in_range("spread", spread, 0.0, math.pi),
+            lifetime=validate.positive("lifetime", lifetime),
+            lifetime_jitter=validate.in_range("lifetime_jitter", lifetime_jitter, 0.0, 1.0),
+            mass=validate.positive("mass", mass),
+            capacity=capacity,
+            color_start=validate.vec3("color_start", color_start),
+            color_end=validate.vec3("color_end", color_end),
+        )
+        self._emitters.append(settings)
+        return len(self._emitters) - 1
+
+    def add_force_gravity(self, g=(0.0, -9.81, 0.0)) -> None:
+        """Uniform gravity g [m/s^2] (Y-up: the default pulls along -y)."""
+        self._gravity = validate.vec3("g", g)
+
+    def add_force_drag(self, coefficient: float) -> None:
+        """Linear drag f = -k v, k [kg/s]."""
+        self._drag.append((validate.non_negative("coefficient", coefficient), (0.0, 0.0, 0.0)))
+
+    def add_force_wind(self, velocity, coefficient: float) -> None:
+        """Wind: linear drag towards the air velocity, f = k (w - v); w [m/s], k [kg/s]."""
+        self._drag.append(
+            (validate.non_negative("coefficient", coefficient), validate.vec3("velocity", velocity))
+        )
+
+    def add_force_anchor_spring(
+        self, particle: int, anchor, *, stiffness: float, rest_length: float = 0.0, damping: float = 0.0
+    ) -> None:
+        """Damped spring from `particle` to a fixed `anchor` [m]: stiffness [N/m], rest_length [m],
+        damping [kg/s] along the spring. One spring per particle."""
+        n = self.particle_count
+        if not (0 <= int(particle) < n):
+            raise ParameterError(f"particle must be an index in [0, {n}), got {particle!r}")
+        if any(s[0] == particle for s in self._anchor_springs):
+            raise ParameterError(f"particle {particle} already has an anchor spring")
+        self._anchor_springs.append(
+            (
+                int(particle),
+                validate.vec3("anchor", anchor),
+                validate.non_negative("stiffness", stiffness),
+                validate.non_negative("rest_length", rest_length),
+                validate.non_negative("damping", damping),
+            )
+        )
+
+    def add_collider_plane(
+        self, normal=(0.0, 1.0, 0.0), offset: float = 0.0, *, restitution: float = 0.5, friction: float = 0.0
+    ) -> None:
+        """Solid half-space {x : n.x < offset}; restitution in [0,1] scales the normal velocity; friction
+        is the Coulomb coefficient on the impact impulse."""
+        self._colliders.append(
+            ColliderPlane(
+                validate.unit3("normal", normal),
+                float(offset),
+                validate.in_range("restitution", restitution, 0.0, 1.0),
+                validate.non_negative("friction", friction),
+            )
+        )
+
+    def add_collider_box(
+        self, lo, hi, *, restitution: float = 0.5, friction: float = 0.0, solid: bool = False
+    ) -> None:
+        """Axis-aligned box lo..hi [m]. solid=False: a container (six inward-facing planes that keep
+        particles inside); solid=True: a solid block (a thin one is a slab) that keeps them out."""
+        lo = np.asarray(validate.vec3("lo", lo))
+        hi = np.asarray(validate.vec3("hi", hi))
+        if np.any(hi <= lo):
+            raise ParameterError(f"hi must exceed lo on every axis, got lo={lo.tolist()}, hi={hi.tolist()}")
+        e = validate.in_range("restitution", restitution, 0.0, 1.0)
+        mu = validate.non_negative("friction", friction)
+        if solid:
+            self._colliders.append(ColliderSolidBox(tuple(lo), tuple(hi), e, mu))
+            return
+        for axis in range(3):
+            n = np.zeros(3)
+            n[axis] = 1.0
+            self._colliders.append(ColliderPlane(tuple(n), lo[axis], e, mu))
+            self._colliders.append(ColliderPlane(tuple(-n), -hi[axis], e, mu))
+
+    def add_particle_trails(self, length: int) -> None:
+        """Keep the last `length` positions of every particle (exported as line sets)."""
+        self._trail_length = validate.count("length", length, 2)
+
+    def finalize(self, *, seed: int = 0) -> Model:
+        """Allocate the model's fields (initialises Taichi on the CPU if the application has not)."""
+        seed = validate.count("seed", seed, 0)
+        if self.particle_count == 0 and not self._emitters:
+            raise ParameterError("the scene is empty: add particles or an emitter before finalize()")
+        ensure_initialized()
+        x = [*self._x]
+        v = [*self._v]
+        m = [*self._m]
+        start = self.particle_count
+        emitters = []
+        for k, es in enumerate(self._emitters):
+            emitters.append(Emitter(es, start, k))
+            x.append(np.tile(es.center, (es.capacity, 1)))
+            v.append(np.zeros((es.capacity, 3)))
+            m.append(np.full(es.capacity, es.mass))
+            start += es.capacity
+        x_all = np.concatenate(x)
+        terms: list = []
+        if self._gravity is not None:
+            terms.append(Gravity(self._gravity))
+        terms += [Drag(k, w) for k, w in self._drag]
+        if self._anchor_springs:
+            terms.append(AnchorSpring(len(x_all), self._anchor_springs))
+        settings = {
+            "particles": self.particle_count,
+            "emitters": [e.settings() for e in emitters],
+            "forces": [t.settings() for t in terms],
+            "colliders": [c.settings() for c in self._colliders],
+            "trail_length": self._trail_length,
+            "seed": seed,
+        }
+        return Model(
+            x=x_all,
+            v=np.concatenate(v),
+            mass=np.concatenate(m),
+            terms=terms,
+            colliders=self._colliders,
+            emitters=emitters,
+            trail_length=self._trail_length,
+            seed=seed,
+            settings=settings,
+        )

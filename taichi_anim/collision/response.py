@@ -1,0 +1,70 @@
+"""Collision response for particles against static colliders (Witkin & Baraff course notes,
+"Particle dynamics", collisions: v_n -> -e v_n, tangential velocity reduced by Coulomb friction).
+
+`collide` runs after the integrator has produced the end-of-step state; PROJECTION moves the end point to
+the surface, BACKWARD re-walks the step's segment (backward search to the time of impact).
+"""
+
+import taichi as ti
+
+from .colliders import NO_HIT, CollisionMode
+
+MAX_HITS = 4  # impacts resolved per particle and step in BACKWARD mode (corners need two or three)
+
+
+@ti.func
+def respond(v, n, restitution, friction):
+    """Velocity after an impact with a surface of outward normal n (unchanged if separating)."""
+    vn = v.dot(n)
+    out = v
+    if vn < 0.0:
+        v_normal = vn * n
+        v_tangent = v - v_normal
+        # Coulomb: the tangential impulse is at most mu times the normal impulse (1 + e)|v_n|.
+        vt = v_tangent.norm()
+        keep = ti.max(1.0 - friction * (1.0 + restitution) * (-vn) / ti.max(vt, 1e-12), 0.0)
+        out = keep * v_tangent - restitution * v_normal
+    return out
+
+
+@ti.func
+def _project(colliders: ti.template(), x, v):
+    for c in ti.static(colliders):
+        d = c.sdf(x)
+        if d < 0.0:
+            n = c.normal(x)
+            x -= d * n
+            v = respond(v, n, c.restitution, c.friction)
+    return x, v
+
+
+@ti.func
+def collide(colliders: ti.template(), mode: ti.template(), x0, v0, x1, v1, dt):
+    """End-of-step position and velocity after collisions; x0, v0 start the step, x1, v1 end it."""
+    x = x1
+    v = v1
+    if ti.static(mode == CollisionMode.BACKWARD):
+        xs, vs, xe, ve = x0, v0, x1, v1
+        frac = 1.0  # fraction of dt still to run from xs
+        for _ in ti.static(range(MAX_HITS)):
+            tau = NO_HIT
+            n = ti.Vector.zero(float, 3)
+            e = 0.0
+            mu = 0.0
+            for c in ti.static(colliders):
+                tc, nc = c.sweep(xs, xe)
+                if tc < tau:
+                    tau, n, e, mu = tc, nc, c.restitution, c.friction
+            if tau <= 1.0:
+                xh = xs + tau * (xe - xs)
+                # Velocity at impact interpolated along the step; the rest of the step keeps the
+                # step's velocity change (gravity keeps acting after the bounce).
+                vh = respond(vs + tau * (ve - vs), n, e, mu)
+                rest = 1.0 - tau
+                ve = vh + rest * (ve - vs)
+                frac *= rest
+                xs, vs = xh, vh
+                xe = xh + frac * dt * ve
+        x, v = xe, ve
+    # Safety net in both modes: nothing ends a step inside a collider (round-off, multiple contacts).
+    return _project(colliders, x, v)

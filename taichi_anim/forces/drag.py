@@ -1,0 +1,24 @@
+"""Linear drag relative to the air, f = k (w - v); wind is a non-zero air velocity w
+(Witkin & Baraff, "Physically Based Modeling", particle dynamics: viscous drag)."""
+
+import taichi as ti
+
+
+@ti.data_oriented
+class Drag:
+    """Linear drag with coefficient `k` [kg/s] towards the air velocity `wind` [m/s]."""
+
+    def __init__(self, k: float, wind=(0.0, 0.0, 0.0)):
+        self.k = float(k)
+        self.wind = tuple(float(c) for c in wind)
+
+    def settings(self) -> dict:
+        return {"type": "wind" if any(self.wind) else "drag", "k": self.k, "wind": self.wind}
+
+    @ti.func
+    def force(self, i, m, x, v, t):
+        return self.k * (ti.Vector(self.wind, dt=float) - v)
+
+    @ti.func
+    def jacobian(self, i, m, x, v, t):
+        return ti.Matrix.zero(float, 3, 3), -self.k * ti.Matrix.identity(float, 3)

@@ -1,0 +1,22 @@
+"""Uniform gravity, f = m g (Witkin & Baraff, "Physically Based Modeling" course notes, particle dynamics)."""
+
+import taichi as ti
+
+
+@ti.data_oriented
+class Gravity:
+    """Constant gravitational acceleration `g` [m/s^2] (the engine is Y-up)."""
+
+    def __init__(self, g):
+        self.g = tuple(float(c) for c in g)
+
+    def settings(self) -> dict:
+        return {"type": "gravity", "g": self.g}
+
+    @ti.func
+    def force(self, i, m, x, v, t):
+        return m * ti.Vector(self.g, dt=float)
+
+    @ti.func
+    def jacobian(self, i, m, x, v, t):
+        return ti.Matrix.zero(float, 3, 3), ti.Matrix.zero(float, 3, 3)

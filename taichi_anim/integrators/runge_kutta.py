@@ -1,0 +1,167 @@
+"""Explicit Runge–Kutta methods from a Butcher tableau (Hairer, Nørsett & Wanner, "Solving Ordinary
+Differential Equations I", sec. II.1, eq. 1.8), applied to u = (x, v), u' = (v, M^-1 f(x, v, t)).
+
+Stage s evaluates the force at u0 + h sum_l a[s][j] k_l; the last stage is fused with the combination
+u1 = u0 + h sum_l b_l k_l (and, for embedded pairs, the error estimate h sum_l (b_l - b*_l) k_l), so an
+S-stage method costs S kernel launches. Explicit Euler (S = 1) is a single kernel.
+"""
+
+from dataclasses import dataclass
+
+import taichi as ti
+
+from .base import Integrator
+
+
+@dataclass(frozen=True)
+class Tableau:
+    """a: lower-triangular stage coefficients (row s has s entries); b: weights; c: nodes;
+    b_low: weights of the embedded lower-order solution (None if the method has none)."""
+
+    name: str
+    order: int
+    a: tuple
+    b: tuple
+    c: tuple
+    b_low: tuple | None = None
+
+
+@ti.data_oriented
+class IntegratorRungeKutta(Integrator):
+    """A fixed-step explicit Runge–Kutta method given by its tableau."""
+
+    def __init__(self, tableau: Tableau, **options):
+        super().__init__(**options)
+        self.tableau = tableau
+        self.name = tableau.name
+        self.order = tableau.order
+        self.stages = len(tableau.b)
+        self._embedded = tableau.b_low is not None
+        self._k_count = -1
+        self.kx = None  # stage derivatives, (stages-1, N) each: the last stage is never stored
+        self.kv = None
+        self.error = ti.field(float, ())  # max over particles of the scaled embedded error
+        self.rtol = 0.0
+        self.atol = 1.0
+
+    def _ensure(self, n: int) -> None:
+        if self.stages > 1 and n != self._k_count:
+            self.kx = ti.Vector.field(3, float, (self.stages - 1, n))
+            self.kv = ti.Vector.field(3, float, (self.stages - 1, n))
+            self._k_count = n
+
+    def advance(self, model, state, xi, vi, xo, vo, ta, t, h, step, finish) -> None:
+        self._ensure(model.particle_count)
+        for s in range(self.stages - 1):
+            self._stage(model, state, xi, vi, s, ta, t, h)
+        self._last(model, state, xi, vi, xo, vo, ta, t, h, step, finish)
+        self.evaluations += self.stages
+
+    @ti.func
+    def _stage_state(self, i, xi: ti.template(), vi: ti.template(), s: ti.template(), h):
+        x = xi[i]
+        v = vi[i]
+        for j in ti.static(range(s)):
+            if ti.static(self.tableau.a[s][j] != 0.0):
+                x += h * self.tableau.a[s][j] * self.kx[j, i]
+                v += h * self.tableau.a[s][j] * self.kv[j, i]
+        return x, v
+
+    @ti.kernel
+    def _stage(
+        self,
+        model: ti.template(),
+        state: ti.template(),
+        xi: ti.template(),
+        vi: ti.template(),
+        s: ti.template(),
+        ta: float,
+        t: float,
+        h: float,
+    ):
+        for i in range(model.particle_count):
+            if model.alive(state, i, ta):
+                x, v = self._stage_state(i, xi, vi, s, h)
+                self.kx[s, i] = v
+                self.kv[s, i] = model.accel(i, x, v, t + self.tableau.c[s] * h)
+
+    @ti.kernel
+    def _last(
+        self,
+        model: ti.template(),
+        state: ti.template(),
+        xi: ti.template(),
+        vi: ti.template(),
+        xo: ti.template(),
+        vo: ti.template(),
+        ta: float,
+        t: float,
+        h: float,
+        step: ti.i32,
+        finish: ti.template(),
+    ):
+        last = ti.static(self.stages - 1)
+        for i in range(model.particle_count):
+            if model.alive(state, i, ta):
+                x0 = xi[i]
+                v0 = vi[i]
+                xs, vs = self._stage_state(i, xi, vi, last, h)
+                kx_last = vs
+                kv_last = model.accel(i, xs, vs, t + self.tableau.c[last] * h)
+                dx = self.tableau.b[last] * kx_last
+                dv = self.tableau.b[last] * kv_last
+                for j in ti.static(range(last)):
+                    if ti.static(self.tableau.b[j] != 0.0):
+                        dx += self.tableau.b[j] * self.kx[j, i]
+                        dv += self.tableau.b[j] * self.kv[j, i]
+                x1 = x0 + h * dx
+                v1 = v0 + h * dv
+                if ti.static(self._embedded):
+                    ex = (self.tableau.b[last] - self.tableau.b_low[last]) * kx_last
+                    ev = (self.tableau.b[last] - self.tableau.b_low[last]) * kv_last
+                    for j in ti.static(range(last)):
+                        if ti.static(self.tableau.b[j] != self.tableau.b_low[j]):
+                            ex += (self.tableau.b[j] - self.tableau.b_low[j]) * self.kx[j, i]
+                            ev += (self.tableau.b[j] - self.tableau.b_low[j]) * self.kv[j, i]
+                    # Mixed absolute/relative scale per component (Hairer et al., eq. II.4.10).
+                    sx = self.atol + self.rtol * ti.max(ti.abs(x0), ti.abs(x1))
+                    sv = self.atol + self.rtol * ti.max(ti.abs(v0), ti.abs(v1))
+                    e = ti.max((h * ti.abs(ex) / sx).max(), (h * ti.abs(ev) / sv).max())
+                    ti.atomic_max(self.error[None], e)
+                self._write(model, state, xo, vo, i, x0, v0, x1, v1, h, step, finish)
+
+
+EXPLICIT_EULER = Tableau("explicit_euler", 1, a=((),), b=(1.0,), c=(0.0,))
+MIDPOINT = Tableau("midpoint", 2, a=((), (0.5,)), b=(0.0, 1.0), c=(0.0, 0.5))
+RK4 = Tableau(
+    "rk4",
+    4,
+    a=((), (0.5,), (0.0, 0.5), (0.0, 0.0, 1.0)),
+    b=(1 / 6, 1 / 3, 1 / 3, 1 / 6),
+    c=(0.0, 0.5, 0.5, 1.0),
+)
+
+
+@ti.data_oriented
+class IntegratorExplicitEuler(IntegratorRungeKutta):
+    """Forward Euler: x1 = x0 + h v0, v1 = v0 + h a(x0, v0). First order; unstable for any h on an
+    undamped oscillator (its amplitude grows by sqrt(1 + (h w)^2) per step)."""
+
+    def __init__(self, **options):
+        super().__init__(EXPLICIT_EULER, **options)
+
+
+@ti.data_oriented
+class IntegratorMidpoint(IntegratorRungeKutta):
+    """Explicit midpoint (RK2): second order, two force evaluations."""
+
+    def __init__(self, **options):
+        super().__init__(MIDPOINT, **options)
+
+
+@ti.data_oriented
+class IntegratorRK4(IntegratorRungeKutta):
+    """Classic fourth-order Runge–Kutta: four force evaluations."""
+
+    def __init__(self, **options):
+        super().__init__(RK4, **options)

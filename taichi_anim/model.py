@@ -1,0 +1,115 @@
+"""Model: the static description of a scene (masses, force terms, colliders, emitters) and its counts.
+Absent parts are empty lists / None with count 0, and kernels branch on them at compile time, so a scene
+compiles and runs only what it has (STYLE.md: "model only what a scene needs")."""
+
+import numpy as np
+import taichi as ti
+
+from .state import ALIVE_FOREVER, State
+
+
+@ti.data_oriented
+class Model:
+    """Built by `Builder.finalize()`. particle_count includes every emitter's slots."""
+
+    def __init__(self, *, x, v, mass, terms, colliders, emitters, trail_length, seed, settings):
+        n = len(x)
+        self.particle_count = n
+        self.terms = list(terms)
+        self.colliders = list(colliders)
+        self.emitters = list(emitters)
+        self.emitter_count = len(self.emitters)
+        self.collider_count = len(self.colliders)
+        self.trail_length = trail_length
+        self.seed = seed
+        self.settings = settings
+        self._x0 = np.asarray(x, dtype=np.float64)
+        self._v0 = np.asarray(v, dtype=np.float64)
+        masses = np.asarray(mass, dtype=np.float64)
+        # One mass for all: a compile-time constant instead of a field read per particle and step.
+        self.uniform_mass = float(masses[0]) if np.all(masses == masses[0]) else None
+        self.particle_mass = None
+        self.particle_inv_mass = None
+        if self.uniform_mass is None:
+            self.particle_mass = ti.field(float, n)
+            self.particle_inv_mass = ti.field(float, n)
+            self.particle_mass.from_numpy(masses)
+            inv = np.divide(1.0, masses, out=np.zeros_like(masses), where=masses > 0)
+            self.particle_inv_mass.from_numpy(inv)
+        self._uniform_inv = 1.0 / self.uniform_mass if self.uniform_mass else 0.0
+        self._per_particle_mass = self.uniform_mass is None  # kernels branch on this at compile time
+        self._static_count = n - sum(e.capacity for e in self.emitters)
+
+    def state(self) -> State:
+        """A fresh State at t = 0: the builder's particles in place, every emitter slot dead."""
+        s = State(self)
+        s.particle_x.from_numpy(self._x0)
+        s.particle_v.from_numpy(self._v0)
+        if s.has_lifetimes:
+            death = np.full(self.particle_count, -1.0)
+            death[: self._static_count] = ALIVE_FOREVER
+            s.particle_death.from_numpy(death)
+            s.particle_birth.from_numpy(np.zeros(self.particle_count))
+        if s.trail_length:
+            s.trail.from_numpy(np.repeat(self._x0[:, None, :], s.trail_length, axis=1))
+        return s
+
+    def emit(self, state: State, dt: float) -> None:
+        for e in self.emitters:
+            e.emit(state, state.time, dt, self.seed, state.step_count)
+
+    @ti.func
+    def mass(self, i):
+        m = ti.cast(self.uniform_mass or 0.0, float)
+        if ti.static(self._per_particle_mass):
+            m = self.particle_mass[i]
+        return m
+
+    @ti.func
+    def inv_mass(self, i):
+        w = ti.cast(self._uniform_inv, float)
+        if ti.static(self._per_particle_mass):
+            w = self.particle_inv_mass[i]
+        return w
+
+    @ti.func
+    def alive(self, state: ti.template(), i, t):
+        ok = True
+        if ti.static(state.has_lifetimes):
+            ok = state.particle_death[i] > t
+        return ok
+
+    @ti.func
+    def force(self, i, x, v, t):
+        """Sum of the pointwise force terms on particle i at (x, v, t)."""
+        m = self.mass(i)
+        f = ti.Vector.zero(float, 3)
+        for term in ti.static(self.terms):
+            f += term.force(i, m, x, v, t)
+        return f
+
+    @ti.func
+    def force_jacobian(self, i, x, v, t):
+        """(df/dx, df/dv) of particle i, 3x3 each, summed over the pointwise terms."""
+        m = self.mass(i)
+        kx = ti.Matrix.zero(float, 3, 3)
+        kv = ti.Matrix.zero(float, 3, 3)
+        for term in ti.static(self.terms):
+            jx, jv = term.jacobian(i, m, x, v, t)
+            kx += jx
+            kv += jv
+        return kx, kv
+
+    @ti.func
+    def accel(self, i, x, v, t):
+        return self.force(i, x, v, t) * self.inv_mass(i)
+
+    def particle_colors(self, idx: np.ndarray, age: np.ndarray, life: np.ndarray) -> np.ndarray:
+        """(N,3) colours in [0,1]: each emitter's ramp over normalised age; grey for other particles."""
+        color = np.full((len(idx), 3), 0.8)
+        for e in self.emitters:
+            sel = (idx >= e.start) & (idx < e.start + e.capacity)
+            if sel.any():
+                s = np.clip(age[sel] / life[sel], 0.0, 1.0)[:, None]
+                color[sel] = (1 - s) * np.asarray(e.s.color_start) + s * np.asarray(e.s.color_end)
+        return color

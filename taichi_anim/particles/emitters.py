@@ -1,0 +1,153 @@
+"""Emitters (Reeves 1983, sec. 2.1 "Particle generation" and 2.2 "Particle attributes"): each owns a
+fixed slot range of the particle pool; a dead slot (death time <= now) is recycled for a new particle.
+
+Per step: `n = floor(rate * dt + carry)` new particles (the fraction carries over, so the mean rate is
+exact and deterministic). A single-threaded kernel scans the emitter's slots from a rotating cursor for
+`n` dead ones (deterministic; with first-in-first-out deaths it inspects about `n` slots), then a
+parallel kernel draws each new particle's position, velocity and lifetime from counter-based hashes
+(same seed, same particles, whatever the thread count).
+"""
+
+import math
+from dataclasses import asdict, dataclass
+from enum import Enum
+
+import taichi as ti
+
+from ..rng import uniform
+
+
+class EmitterShape(Enum):
+    """Where new particles appear: at a point, on a disc facing `direction`, in a ball, or in a box."""
+
+    POINT = "point"
+    DISC = "disc"
+    SPHERE = "sphere"
+    BOX = "box"
+
+
+@dataclass(frozen=True)
+class EmitterSettings:
+    """An emitter's options (SI units). `spread` is the half-angle [rad] of the velocity cone around
+    `direction`; `lifetime_jitter` the relative spread of lifetimes (lifetime * (1 +- jitter))."""
+
+    shape: EmitterShape
+    center: tuple[float, float, float]
+    size: tuple[float, float, float]  # radius in [0] for disc/sphere; half extents for box
+    direction: tuple[float, float, float]
+    rate: float  # [particles/s]
+    speed: float  # [m/s]
+    speed_jitter: float  # relative
+    spread: float  # [rad]
+    lifetime: float  # [s]
+    lifetime_jitter: float  # relative
+    mass: float  # [kg]
+    capacity: int
+    color_start: tuple[float, float, float]
+    color_end: tuple[float, float, float]
+
+
+def _basis(direction):
+    """Two unit vectors orthogonal to `direction` (and to each other)."""
+    d = direction
+    helper = (1.0, 0.0, 0.0) if abs(d[0]) < 0.9 else (0.0, 1.0, 0.0)
+    u = (
+        d[1] * helper[2] - d[2] * helper[1],
+        d[2] * helper[0] - d[0] * helper[2],
+        d[0] * helper[1] - d[1] * helper[0],
+    )
+    n = math.sqrt(sum(c * c for c in u))
+    u = tuple(c / n for c in u)
+    w = (d[1] * u[2] - d[2] * u[1], d[2] * u[0] - d[0] * u[2], d[0] * u[1] - d[1] * u[0])
+    return u, w
+
+
+@ti.data_oriented
+class Emitter:
+    """Emits into slots [start, start + capacity) of the particle pool."""
+
+    def __init__(self, settings: EmitterSettings, start: int, index: int):
+        self.s = settings
+        self.start = start
+        self.capacity = settings.capacity
+        self.index = index
+        self.u, self.w = _basis(settings.direction)
+        self.slot = ti.field(ti.i32, self.capacity)
+        self.found = ti.field(ti.i32, ())
+        self.cursor = 0
+        self.carry = 0.0
+
+    def settings(self) -> dict:
+        d = asdict(self.s)
+        d["shape"] = self.s.shape.value
+        d["slots"] = [self.start, self.start + self.capacity]
+        return d
+
+    def emit(self, state, t: float, dt: float, seed: int, step: int) -> None:
+        """Spawn this step's particles at time t (they then live through the step)."""
+        want = self.s.rate * dt + self.carry
+        n = min(int(want), self.capacity)
+        self.carry = want - int(want)
+        if n == 0:
+            return
+        self.cursor = self._find_dead(state, t, n, self.cursor)
+        self._spawn(state, t, seed, step)
+
+    @ti.kernel
+    def _find_dead(self, state: ti.template(), t: float, n: ti.i32, start_at: ti.i32) -> ti.i32:
+        cursor = start_at
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            found = 0
+            scanned = 0
+            while found < n and scanned < self.capacity:
+                i = self.start + cursor
+                if state.particle_death[i] <= t:
+                    self.slot[found] = i
+                    found += 1
+                cursor = (cursor + 1) % self.capacity
+                scanned += 1
+            self.found[None] = found
+        return cursor
+
+    @ti.func
+    def _sample(self, seed, step, j):
+        r = ti.Vector([uniform(seed, step, j, k) for k in ti.static(range(7))])
+        center = ti.Vector(self.s.center, dt=float)
+        axis = ti.Vector(self.s.direction, dt=float)
+        u = ti.Vector(self.u, dt=float)
+        w = ti.Vector(self.w, dt=float)
+        pos = center
+        if ti.static(self.s.shape == EmitterShape.DISC):
+            rad = self.s.size[0] * ti.sqrt(r[0])
+            ang = 2.0 * math.pi * r[1]
+            pos = center + rad * (ti.cos(ang) * u + ti.sin(ang) * w)
+        elif ti.static(self.s.shape == EmitterShape.SPHERE):
+            z = 2.0 * r[0] - 1.0
+            ang = 2.0 * math.pi * r[1]
+            ring = ti.sqrt(ti.max(1.0 - z * z, 0.0))
+            rad = self.s.size[0] * ti.pow(r[2], 1.0 / 3.0)
+            pos = center + rad * ti.Vector([ring * ti.cos(ang), ring * ti.sin(ang), z])
+        elif ti.static(self.s.shape == EmitterShape.BOX):
+            pos = center + (2.0 * r.xyz - 1.0) * ti.Vector(self.s.size, dt=float)
+        # Direction uniform on the spherical cap of half-angle `spread` around `direction`.
+        cos_t = 1.0 - r[3] * (1.0 - ti.cos(self.s.spread))
+        sin_t = ti.sqrt(ti.max(1.0 - cos_t * cos_t, 0.0))
+        phi = 2.0 * math.pi * r[4]
+        dirn = cos_t * axis + sin_t * (ti.cos(phi) * u + ti.sin(phi) * w)
+        speed = self.s.speed * (1.0 + self.s.speed_jitter * (2.0 * r[5] - 1.0))
+        life = self.s.lifetime * (1.0 + self.s.lifetime_jitter * (2.0 * r[6] - 1.0))
+        return pos, speed * dirn, life
+
+    @ti.kernel
+    def _spawn(self, state: ti.template(), t: float, seed: ti.u32, step: ti.u32):
+        for j in range(self.found[None]):
+            i = self.slot[j]
+            x, v, life = self._sample(seed, step, ti.cast(self.start + j, ti.u32))
+            state.particle_x[i] = x
+            state.particle_v[i] = v
+            state.particle_birth[i] = t
+            state.particle_death[i] = t + life
+            if ti.static(state.trail_length > 0):
+                for k in range(state.trail_length):
+                    state.trail[i, k] = x

@@ -1,0 +1,71 @@
+"""Taichi initialisation: `init(arch=...)` for convenience; the library never calls `ti.init` on import."""
+
+from __future__ import annotations
+
+import taichi as ti
+from taichi.lang import impl
+
+from . import validate
+
+ARCHS = ("cpu", "gpu", "cuda", "vulkan", "auto")
+PRECISIONS = ("f32", "f64")
+
+
+def is_initialized() -> bool:
+    """True once the application (or `init`) has initialised Taichi."""
+    return impl.get_runtime().prog is not None
+
+
+def init(
+    arch: str = "cpu",
+    *,
+    precision: str = "f32",
+    debug: bool = False,
+    cpu_threads: int | None = None,
+    offline_cache: bool = True,
+    **taichi_options,
+) -> str:
+    """Initialise Taichi and return the name of the backend that actually runs.
+
+    arch: "cpu" (default), "gpu" (any GPU Taichi finds, else CPU), "cuda", "vulkan", or "auto" (GPU if
+    present, else CPU). precision: "f32" or "f64" for every float field the engine allocates.
+    cpu_threads pins the CPU thread count (1 makes float atomics reproducible run to run).
+    Calling it again resets Taichi: fields allocated before become invalid.
+    """
+    validate.choice("arch", arch, ARCHS)
+    validate.choice("precision", precision, PRECISIONS)
+    target = {"cpu": ti.cpu, "gpu": ti.gpu, "auto": ti.gpu, "cuda": ti.cuda, "vulkan": ti.vulkan}[arch]
+    opts = dict(
+        arch=target,
+        default_fp=ti.f64 if precision == "f64" else ti.f32,
+        debug=debug,
+        offline_cache=offline_cache,
+        log_level=ti.WARN,
+    )
+    if cpu_threads is not None:
+        opts["cpu_max_num_threads"] = validate.count("cpu_threads", cpu_threads, 1)
+    opts.update(taichi_options)
+    ti.init(**opts)
+    running = backend_name()
+    if arch in ("cuda", "vulkan") and running != arch:
+        raise RuntimeError(
+            f"arch={arch!r} was requested but Taichi could not start it (running on {running})"
+        )
+    return running
+
+
+def ensure_initialized() -> None:
+    """Initialise Taichi on the CPU if the application has not done so yet."""
+    if not is_initialized():
+        init("cpu")
+
+
+def backend_name() -> str:
+    """Name of the running Taichi backend ("cpu", "cuda", "vulkan", ...)."""
+    arch = impl.current_cfg().arch
+    return "cpu" if arch in (ti.x64, ti.arm64) else arch.name
+
+
+def float_dtype():
+    """The float type fields are allocated with (Taichi's default_fp)."""
+    return impl.get_runtime().default_fp
