@@ -13,6 +13,15 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
     fi
 fi
 PY=${PYTHON:-python3}
+# Debian's system Python ships venv (with ensurepip) in a separate package.
+if ! "$PY" -c 'import ensurepip, venv' >/dev/null 2>&1; then
+    if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+        apt-get update -qq && apt-get install -y -qq --no-install-recommends python3-venv >/dev/null
+    else
+        echo "setup: $PY has no venv module; install python3-venv" >&2
+        exit 1
+    fi
+fi
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 if [ "${1:-}" = dev ]; then

@@ -5,6 +5,7 @@ compiles and runs only what it has (STYLE.md: "model only what a scene needs")."
 import numpy as np
 import taichi as ti
 
+from .runtime import np_float
 from .state import ALIVE_FOREVER, State
 
 
@@ -33,9 +34,9 @@ class Model:
         if self.uniform_mass is None:
             self.particle_mass = ti.field(float, n)
             self.particle_inv_mass = ti.field(float, n)
-            self.particle_mass.from_numpy(masses)
+            self.particle_mass.from_numpy(masses.astype(np_float()))
             inv = np.divide(1.0, masses, out=np.zeros_like(masses), where=masses > 0)
-            self.particle_inv_mass.from_numpy(inv)
+            self.particle_inv_mass.from_numpy(inv.astype(np_float()))
         self._uniform_inv = 1.0 / self.uniform_mass if self.uniform_mass else 0.0
         self._per_particle_mass = self.uniform_mass is None  # kernels branch on this at compile time
         self._static_count = n - sum(e.capacity for e in self.emitters)
@@ -43,15 +44,16 @@ class Model:
     def state(self) -> State:
         """A fresh State at t = 0: the builder's particles in place, every emitter slot dead."""
         s = State(self)
-        s.particle_x.from_numpy(self._x0)
-        s.particle_v.from_numpy(self._v0)
+        f = np_float()
+        s.particle_x.from_numpy(self._x0.astype(f))
+        s.particle_v.from_numpy(self._v0.astype(f))
         if s.has_lifetimes:
             death = np.full(self.particle_count, -1.0)
             death[: self._static_count] = ALIVE_FOREVER
-            s.particle_death.from_numpy(death)
-            s.particle_birth.from_numpy(np.zeros(self.particle_count))
+            s.particle_death.from_numpy(death.astype(f))
+            s.particle_birth.from_numpy(np.zeros(self.particle_count, f))
         if s.trail_length:
-            s.trail.from_numpy(np.repeat(self._x0[:, None, :], s.trail_length, axis=1))
+            s.trail.from_numpy(np.repeat(self._x0[:, None, :], s.trail_length, axis=1).astype(f))
         return s
 
     def emit(self, state: State, dt: float) -> None:

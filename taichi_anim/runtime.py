@@ -69,3 +69,10 @@ def backend_name() -> str:
 def float_dtype():
     """The float type fields are allocated with (Taichi's default_fp)."""
     return impl.get_runtime().default_fp
+
+
+def np_float():
+    """The NumPy dtype matching the float fields (converting first avoids Taichi's f64 -> f32 warning)."""
+    import numpy as np
+
+    return np.float64 if float_dtype() == ti.f64 else np.float32

@@ -4,10 +4,14 @@ Simulation", 1998, eq. 16 with one end fixed):
     df/dx = -k [n n^T + (1 - L0/l) (I - n n^T)],   df/dv = -c n n^T
 The transverse part (1 - L0/l) is clamped at 0 under compression so the implicit system stays positive
 definite (Choi & Ko, "Stable but Responsive Cloth", 2002); it is exact whenever the spring is stretched.
+The x-derivative of the damping force (through n) is left out, as Baraff & Witkin do (sec. 5): it is
+not symmetric and would break the symmetric solvers; it vanishes when the relative velocity does.
 """
 
 import numpy as np
 import taichi as ti
+
+from ..runtime import np_float
 
 _EPS = 1e-12
 
@@ -28,8 +32,8 @@ class AnchorSpring:
             params[i] = (k, rest, c)
         self.anchor = ti.Vector.field(3, float, n)
         self.params = ti.Vector.field(3, float, n)
-        self.anchor.from_numpy(anchor)
-        self.params.from_numpy(params)
+        self.anchor.from_numpy(anchor.astype(np_float()))
+        self.params.from_numpy(params.astype(np_float()))
         self.count = len(springs)
 
     def settings(self) -> dict:

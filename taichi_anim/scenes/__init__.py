@@ -1,0 +1,22 @@
+"""Demo scenes, by name: what `taichi-anim demo NAME` runs."""
+
+from .. import validate
+from . import fountain
+from .base import Scene
+
+SCENES = {"fountain": fountain}
+DEFAULT_SCENE = "fountain"
+
+
+def make_scene(name: str, **options) -> Scene:
+    """Build the scene `name` (see SCENES) with its keyword options."""
+    validate.choice("demo", name, SCENES)
+    return SCENES[name].build(**options)
+
+
+def describe() -> dict[str, str]:
+    """Scene name -> one-line description (from each module's docstring)."""
+    return {n: (m.__doc__ or "").strip().split("\n")[0] for n, m in SCENES.items()}
+
+
+__all__ = ["DEFAULT_SCENE", "SCENES", "Scene", "describe", "make_scene"]
