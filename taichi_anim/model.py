@@ -51,6 +51,9 @@ class Model:
             death = np.full(self.particle_count, -1.0)
             death[: self._static_count] = ALIVE_FOREVER
             s.particle_death.from_numpy(death.astype(f))
+            dead = np.zeros(s.particle_free.shape[0] * 32, dtype=np.uint8)
+            dead[self._static_count : self.particle_count] = 1
+            s.particle_free.from_numpy(np.packbits(dead, bitorder="little").view(np.uint32))
             s.particle_birth.from_numpy(np.zeros(self.particle_count, f))
         if s.trail_length:
             s.trail.from_numpy(np.repeat(self._x0[:, None, :], s.trail_length, axis=1).astype(f))
@@ -80,6 +83,21 @@ class Model:
         if ti.static(state.has_lifetimes):
             ok = state.particle_death[i] > t
         return ok
+
+    @ti.func
+    def release(self, state: ti.template(), i):
+        """Mark dead slot i free for emitters. Final kernels call it for particles that die within the
+        step and again for any found dead at its start (covers f32 rounding of the step's end time)."""
+        w = i >> 5
+        bit = ti.u32(1) << ti.cast(i & 31, ti.u32)
+        if (state.particle_free[w] & bit) == 0:  # plain read first: most dead slots are marked already
+            ti.atomic_or(state.particle_free[w], bit)
+
+    @ti.func
+    def release_if_dead(self, state: ti.template(), i, t):
+        """Free slot i for emitters if its particle is dead by time t (the end of the step)."""
+        if state.particle_death[i] <= t:
+            self.release(state, i)
 
     @ti.func
     def force(self, i, x, v, t):

@@ -114,6 +114,10 @@ class Integrator:
                 self._finish(
                     model, state, i, state.particle_x[i], state.particle_v[i], x1f[i], v1f[i], h, step
                 )
+                if ti.static(state.has_lifetimes):
+                    model.release_if_dead(state, i, ta + h)
+            elif ti.static(state.has_lifetimes):
+                model.release(state, i)
 
     @ti.kernel
     def _copy(

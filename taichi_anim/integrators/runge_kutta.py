@@ -129,6 +129,10 @@ class IntegratorRungeKutta(Integrator):
                     e = ti.max((h * ti.abs(ex) / sx).max(), (h * ti.abs(ev) / sv).max())
                     ti.atomic_max(self.error[None], e)
                 self._write(model, state, xo, vo, i, x0, v0, x1, v1, h, step, finish)
+                if ti.static(finish and state.has_lifetimes):
+                    model.release_if_dead(state, i, ta + h)  # dies within this step
+            elif ti.static(finish and state.has_lifetimes):
+                model.release(state, i)
 
 
 EXPLICIT_EULER = Tableau("explicit_euler", 1, a=((),), b=(1.0,), c=(0.0,))

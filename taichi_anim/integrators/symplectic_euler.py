@@ -41,3 +41,7 @@ class IntegratorSymplecticEuler(Integrator):
                 v1 = v0 + h * model.accel(i, x0, v0, t)
                 x1 = x0 + h * v1
                 self._write(model, state, xo, vo, i, x0, v0, x1, v1, h, step, finish)
+                if ti.static(finish and state.has_lifetimes):
+                    model.release_if_dead(state, i, ta + h)  # dies within this step
+            elif ti.static(finish and state.has_lifetimes):
+                model.release(state, i)

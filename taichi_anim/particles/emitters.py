@@ -2,8 +2,10 @@
 fixed slot range of the particle pool; a dead slot (death time <= now) is recycled for a new particle.
 
 Per step: `n = floor(rate * dt + carry)` new particles (the fraction carries over, so the mean rate is
-exact and deterministic). A single-threaded kernel scans the emitter's slots from a rotating cursor for
-`n` dead ones (deterministic; with first-in-first-out deaths it inspects about `n` slots), then a
+exact and deterministic). Dead slots carry a bit in `State.particle_free` (set by the integrator's
+last kernel with an integer atomic, so the result does not depend on thread order). A single-threaded
+kernel scans those bits, 32 slots per word, from a rotating cursor and takes the first `n` free slots
+(deterministic; a full pool with scattered deaths costs N/32 word reads, not N death times), then a
 parallel kernel draws each new particle's position, velocity and lifetime from counter-based hashes
 (same seed, same particles, whatever the thread count).
 """
@@ -62,6 +64,23 @@ def _basis(direction):
     return u, w
 
 
+@ti.func
+def _bit_index(low: ti.u32) -> ti.i32:
+    """Index of the single set bit of `low` (portable: clz of the sign bit differs on Vulkan)."""
+    b = 0
+    if low & ti.u32(0xFFFF0000):
+        b += 16
+    if low & ti.u32(0xFF00FF00):
+        b += 8
+    if low & ti.u32(0xF0F0F0F0):
+        b += 4
+    if low & ti.u32(0xCCCCCCCC):
+        b += 2
+    if low & ti.u32(0xAAAAAAAA):
+        b += 1
+    return b
+
+
 @ti.data_oriented
 class Emitter:
     """Emits into slots [start, start + capacity) of the particle pool."""
@@ -74,6 +93,11 @@ class Emitter:
         self.u, self.w = _basis(settings.direction)
         self.slot = ti.field(ti.i32, self.capacity)
         self.found = ti.field(ti.i32, ())
+        end = start + self.capacity
+        self.word_lo, self.word_hi = start >> 5, (end - 1) >> 5
+        # Bits of the first and last word that belong to this emitter's slot range.
+        self.mask_lo = (0xFFFFFFFF << (start & 31)) & 0xFFFFFFFF
+        self.mask_hi = 0xFFFFFFFF >> (31 - ((end - 1) & 31))
         self.cursor = 0
         self.carry = 0.0
 
@@ -90,23 +114,34 @@ class Emitter:
         self.carry = want - int(want)
         if n == 0:
             return
-        self.cursor = self._find_dead(state, t, n, self.cursor)
+        self.cursor = self._find_free(state, n, self.cursor)
         self._spawn(state, t, seed, step)
 
     @ti.kernel
-    def _find_dead(self, state: ti.template(), t: float, n: ti.i32, start_at: ti.i32) -> ti.i32:
-        cursor = start_at
+    def _find_free(self, state: ti.template(), n: ti.i32, start_word: ti.i32) -> ti.i32:
+        words = self.word_hi - self.word_lo + 1
+        cursor = start_word
         ti.loop_config(serialize=True)
         for _ in range(1):
             found = 0
             scanned = 0
-            while found < n and scanned < self.capacity:
-                i = self.start + cursor
-                if state.particle_death[i] <= t:
-                    self.slot[found] = i
+            while found < n and scanned < words:
+                w = self.word_lo + cursor
+                mask = ti.u32(0xFFFFFFFF)
+                if w == self.word_lo:
+                    mask &= ti.u32(self.mask_lo)
+                if w == self.word_hi:
+                    mask &= ti.u32(self.mask_hi)
+                bits = state.particle_free[w] & mask
+                while bits != 0 and found < n:
+                    low = bits & (~bits + ti.u32(1))  # lowest set bit
+                    self.slot[found] = w * 32 + _bit_index(low)
                     found += 1
-                cursor = (cursor + 1) % self.capacity
-                scanned += 1
+                    bits ^= low
+                    state.particle_free[w] ^= low
+                if found < n:  # this word is used up: move on (else more may be free here)
+                    cursor = (cursor + 1) % words
+                    scanned += 1
             self.found[None] = found
         return cursor
 
