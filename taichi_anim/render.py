@@ -13,7 +13,7 @@ import taichi as ti
 
 from . import validate
 from .errors import ParameterError
-from .io.export import _colors, _indices, atomic_path
+from .io.export import atomic_path
 
 DEFAULT_RESOLUTION = (800, 600)
 POINT_COLOR = 0xF2C66D
@@ -151,7 +151,7 @@ def _color_int(name: str, value) -> int:
         if not 0 <= int(value) <= 0xFFFFFF:
             raise ParameterError(f"{name} must be a colour 0xRRGGBB, got {value!r}")
         return int(value)
-    rgb = _colors(name, np.asarray(value).reshape(1, 3), 1)[0]
+    rgb = validate.colors(name, np.asarray(value).reshape(1, 3), 1)[0]
     r, g, b = (int(round(c * 255.0)) for c in rgb)
     return (r << 16) | (g << 8) | b
 
@@ -162,7 +162,7 @@ def _color_array(name: str, value, n: int, default: int) -> int | np.ndarray:
         return default
     if isinstance(value, (int, np.integer)) or np.shape(value) == (3,):
         return _color_int(name, value)
-    rgb = np.round(_colors(name, value, n) * 255.0).astype(np.uint32)
+    rgb = np.round(validate.colors(name, value, n) * 255.0).astype(np.uint32)
     return (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
 
 
@@ -183,7 +183,7 @@ def _segments(lines) -> tuple[np.ndarray, np.ndarray]:
     a, b = np.asarray(lines[0]), np.asarray(lines[1])
     if np.issubdtype(b.dtype, np.integer) and b.ndim == 2 and b.shape[1] == 2:
         pts = validate.finite_array("lines[0] (points)", a, (3,))
-        idx = _indices("lines[1] (indices)", b, 2, len(pts), "points")
+        idx = validate.indices("lines[1] (indices)", b, 2, len(pts), "points")
         return pts[idx[:, 0]], pts[idx[:, 1]]
     begin = validate.finite_array("lines[0] (begin)", a, (3,))
     end = validate.finite_array("lines[1] (end)", b, (3,))
@@ -200,7 +200,7 @@ def _mesh(triangles):
             "triangles must be (vertices (V,3), faces (F,3) int) or (vertices, faces, face_colors (F,3))"
         )
     v = validate.finite_array("triangles[0] (vertices)", triangles[0], (3,))
-    f = _indices("triangles[1] (faces)", triangles[1], 3, len(v), "vertices")
+    f = validate.indices("triangles[1] (faces)", triangles[1], 3, len(v), "vertices")
     fc = triangles[2] if len(triangles) == 3 else None
     return v, f, _color_array("triangles[2] (face colors)", fc, len(f), TRIANGLE_COLOR)
 

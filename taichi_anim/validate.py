@@ -78,3 +78,36 @@ def choice(name: str, value, options: Iterable[str]) -> str:
     if value not in opts:
         raise ParameterError(f"unknown {name} {value!r}; choose one of: {', '.join(opts)}")
     return value
+
+
+def colors(name: str, value, n: int) -> np.ndarray:
+    """(n,3) colours in [0,1] as float64 (uint8 input is taken as 0..255)."""
+    a = np.asarray(value)
+    if a.dtype == np.uint8:
+        a = a.astype(np.float64) / 255.0
+    a = finite_array(name, a, (3,))
+    if a.shape[0] != n:
+        raise ParameterError(f"{name} must have one row per element ({n}), got {a.shape[0]} rows")
+    if a.size and (a.min() < 0.0 or a.max() > 1.0):
+        raise ParameterError(f"{name} must lie in [0, 1], got values in [{a.min():g}, {a.max():g}]")
+    return a
+
+
+def indices(name: str, value, width: int, vertex_count: int, vertex_name: str) -> np.ndarray:
+    """(M,width) integer indices, each in [0, vertex_count), as int32 (Open3D's index type)."""
+    a = np.asarray(value)
+    if a.size == 0:
+        a = a.reshape(0, width)
+    if a.ndim != 2 or a.shape[1] != width:
+        raise ParameterError(f"{name} must have shape (M, {width}), got {a.shape}")
+    if not (np.issubdtype(a.dtype, np.integer) or (a.dtype.kind == "f" and np.all(a == np.round(a)))):
+        raise ParameterError(f"{name} must hold integer vertex indices, got dtype {a.dtype}")
+    if a.size:
+        bad = (a < 0) | (a >= vertex_count)
+        if bad.any():
+            row = int(np.argwhere(bad)[0][0])
+            raise ParameterError(
+                f"{name} holds {int(bad.sum())} indices outside [0, {vertex_count}) (the number of "
+                f"{vertex_name}); first bad row {row}: {a[row].tolist()}"
+            )
+    return a.astype(np.int32)

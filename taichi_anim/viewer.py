@@ -15,7 +15,7 @@ import taichi as ti
 
 from . import runtime, validate
 from .errors import ParameterError
-from .io.export import _colors, _indices, area_weighted_normals, atomic_path
+from .io.export import area_weighted_normals, atomic_path
 
 INSTALL_HINT = (
     "on Debian/Ubuntu: apt-get install libvulkan1 mesa-vulkan-drivers (lavapipe, a software Vulkan driver; "
@@ -343,7 +343,7 @@ class Viewer:
                 kw = dict(radius=radius, index_count=len(p))
                 if colors is not None and np.shape(colors) != (3,):
                     kw["per_vertex_color"] = self._buf["colors"].upload(
-                        _colors("colors", colors, len(p)), exact=cap
+                        validate.colors("colors", colors, len(p)), exact=cap
                     )
                 else:
                     kw["color"] = self._rgb("colors", colors, (0.95, 0.78, 0.43))
@@ -357,7 +357,7 @@ class Viewer:
                 cap = self._buf["line_points"].capacity
                 kw = dict(width=validate.positive("line_width", line_width), vertex_count=len(seg))
                 if line_colors is not None and np.shape(line_colors) != (3,):
-                    c = _colors("line_colors", line_colors, len(begin))
+                    c = validate.colors("line_colors", line_colors, len(begin))
                     kw["per_vertex_color"] = self._buf["line_colors"].upload(
                         np.repeat(c, 2, axis=0), exact=cap
                     )
@@ -369,7 +369,7 @@ class Viewer:
             if not isinstance(triangles, (tuple, list)) or len(triangles) != 2:
                 raise ParameterError("triangles must be (vertices (V,3), faces (F,3) int)")
             v = validate.finite_array("triangles[0] (vertices)", triangles[0], (3,))
-            f = _indices("triangles[1] (faces)", triangles[1], 3, len(v), "vertices")
+            f = validate.indices("triangles[1] (faces)", triangles[1], 3, len(v), "vertices")
             if len(f):
                 vertices = self._buf["mesh_vertices"].upload(v)
                 cap = self._buf["mesh_vertices"].capacity
@@ -381,7 +381,7 @@ class Viewer:
                     index_count=3 * len(f),
                 )
                 if mesh_colors is not None:
-                    c = _colors("mesh_colors", mesh_colors, len(v))
+                    c = validate.colors("mesh_colors", mesh_colors, len(v))
                     kw["per_vertex_color"] = self._buf["mesh_colors"].upload(c, exact=cap)
                 else:
                     kw["color"] = self._rgb("mesh_color", mesh_color, (0.72, 0.75, 0.8))
@@ -397,7 +397,7 @@ class Viewer:
     def _rgb(name: str, value, default) -> tuple[float, float, float]:
         if value is None:
             return default
-        return tuple(float(c) for c in _colors(name, np.asarray(value).reshape(1, 3), 1)[0])
+        return tuple(float(c) for c in validate.colors(name, np.asarray(value).reshape(1, 3), 1)[0])
 
     def _submit(self, calls) -> None:
         scene = self._scene

@@ -100,39 +100,6 @@ def _points(name: str, value) -> np.ndarray:
     return validate.finite_array(name, value, (3,))
 
 
-def _colors(name: str, value, n: int) -> np.ndarray:
-    """(n,3) colours in [0,1] as float64 (uint8 input is taken as 0..255)."""
-    a = np.asarray(value)
-    if a.dtype == np.uint8:
-        a = a.astype(np.float64) / 255.0
-    a = validate.finite_array(name, a, (3,))
-    if a.shape[0] != n:
-        raise ParameterError(f"{name} must have one row per element ({n}), got {a.shape[0]} rows")
-    if a.size and (a.min() < 0.0 or a.max() > 1.0):
-        raise ParameterError(f"{name} must lie in [0, 1], got values in [{a.min():g}, {a.max():g}]")
-    return a
-
-
-def _indices(name: str, value, width: int, vertex_count: int, vertex_name: str) -> np.ndarray:
-    """(M,width) integer indices, each in [0, vertex_count), as int32 (Open3D's index type)."""
-    a = np.asarray(value)
-    if a.size == 0:
-        a = a.reshape(0, width)
-    if a.ndim != 2 or a.shape[1] != width:
-        raise ParameterError(f"{name} must have shape (M, {width}), got {a.shape}")
-    if not (np.issubdtype(a.dtype, np.integer) or (a.dtype.kind == "f" and np.all(a == np.round(a)))):
-        raise ParameterError(f"{name} must hold integer vertex indices, got dtype {a.dtype}")
-    if a.size:
-        bad = (a < 0) | (a >= vertex_count)
-        if bad.any():
-            row = int(np.argwhere(bad)[0][0])
-            raise ParameterError(
-                f"{name} holds {int(bad.sum())} indices outside [0, {vertex_count}) (the number of "
-                f"{vertex_name}); first bad row {row}: {a[row].tolist()}"
-            )
-    return a.astype(np.int32)
-
-
 def _attribute_array(name: str, value, n: int) -> np.ndarray:
     """A per-point attribute as (n,) or (n,k), converted to a dtype the PLY writer accepts."""
     if not isinstance(name, str) or not _ATTRIBUTE_NAME.match(name) or name in _RESERVED_ATTRIBUTES:
@@ -306,7 +273,7 @@ def write_point_cloud(
     fmt = _format(path, POINT_CLOUD_FORMATS, "point cloud")
     pos = _points("points", points).astype(_position_dtype(points))
     n = pos.shape[0]
-    rgb = None if colors is None else _colors("colors", colors, n)
+    rgb = None if colors is None else validate.colors("colors", colors, n)
     attrs = {k: _attribute_array(k, v, n) for k, v in (attributes or {}).items()}
     if fmt == "xyz" and (rgb is not None or attrs):
         raise ParameterError(".xyz stores positions only; write .ply to keep colors and attributes")
@@ -488,7 +455,7 @@ def write_triangle_mesh(
     fmt = _format(path, TRIANGLE_MESH_FORMATS, "triangle mesh")
     v = _points("vertices", vertices)
     nv = v.shape[0]
-    f = _indices("triangles", triangles, 3, nv, "vertices")
+    f = validate.indices("triangles", triangles, 3, nv, "vertices")
     normals = None
     if vertex_normals is not None:
         normals = validate.finite_array("vertex_normals", vertex_normals, (3,))
@@ -498,7 +465,7 @@ def write_triangle_mesh(
             )
     elif compute_normals and len(f):
         normals = area_weighted_normals(v, f)
-    rgb = None if vertex_colors is None else _colors("vertex_colors", vertex_colors, nv)
+    rgb = None if vertex_colors is None else validate.colors("vertex_colors", vertex_colors, nv)
 
     import open3d as o3d
 
@@ -619,8 +586,8 @@ def write_line_set(path: str | os.PathLike, points, lines, colors=None) -> Path:
     path = Path(path)
     _format(path, LINE_SET_FORMATS, "line set")
     p = _points("points", points)
-    seg = _indices("lines", lines, 2, p.shape[0], "points")
-    rgb = None if colors is None else _colors("colors", colors, seg.shape[0])
+    seg = validate.indices("lines", lines, 2, p.shape[0], "points")
+    rgb = None if colors is None else validate.colors("colors", colors, seg.shape[0])
 
     import open3d as o3d
 
