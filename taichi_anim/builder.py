@@ -28,6 +28,7 @@ class Builder:
         self._gravity: tuple | None = None
         self._drag: list[tuple[float, tuple]] = []
         self._anchor_springs: list[tuple] = []
+        self._anchored: set[int] = set()
         self._colliders: list = []
         self._trail_length = 0
 
@@ -133,7 +134,7 @@ class Builder:
         n = self.particle_count
         if not (0 <= int(particle) < n):
             raise ParameterError(f"particle must be an index in [0, {n}), got {particle!r}")
-        if any(s[0] == particle for s in self._anchor_springs):
+        if int(particle) in self._anchored:
             raise ParameterError(f"particle {particle} already has an anchor spring")
         self._anchor_springs.append(
             (
@@ -144,6 +145,7 @@ class Builder:
                 validate.non_negative("damping", damping),
             )
         )
+        self._anchored.add(int(particle))
 
     def add_collider_plane(
         self, normal=(0.0, 1.0, 0.0), offset: float = 0.0, *, restitution: float = 0.5, friction: float = 0.0

@@ -5,7 +5,7 @@ compiles and runs only what it has (STYLE.md: "model only what a scene needs")."
 import numpy as np
 import taichi as ti
 
-from .runtime import np_float
+from .runtime import np_float, serial_loops
 from .state import ALIVE_FOREVER, State
 
 
@@ -40,6 +40,8 @@ class Model:
         self._uniform_inv = 1.0 / self.uniform_mass if self.uniform_mass else 0.0
         self._per_particle_mass = self.uniform_mass is None  # kernels branch on this at compile time
         self._static_count = n - sum(e.capacity for e in self.emitters)
+        # Small scenes are launch-bound on the CPU: their particle loops run serially (compile-time).
+        self.serial = serial_loops(n)
 
     def state(self) -> State:
         """A fresh State at t = 0: the builder's particles in place, every emitter slot dead."""

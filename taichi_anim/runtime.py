@@ -66,6 +66,17 @@ def backend_name() -> str:
     return "cpu" if arch in (ti.x64, ti.arm64) else arch.name
 
 
+# Below this many elements a CPU loop runs on one thread: a parallel launch costs ~200 us more than a
+# serial one here (PLATFORM.md), more than small loops gain from the second core (measured in
+# benchmarks/particles.py, "serial threshold").
+CPU_SERIAL_BELOW = 20_000
+
+
+def serial_loops(count: int) -> bool:
+    """Whether kernels over `count` elements should run serially on the current backend."""
+    return backend_name() == "cpu" and count < CPU_SERIAL_BELOW
+
+
 def float_dtype():
     """The float type fields are allocated with (Taichi's default_fp)."""
     return impl.get_runtime().default_fp

@@ -98,6 +98,7 @@ class IntegratorAdaptive(Integrator):
         vb: ti.template(),
         ta: float,
     ):
+        ti.loop_config(serialize=model.serial)
         for i in range(model.particle_count):
             if model.alive(state, i, ta):
                 d = ti.max(ti.abs(xa[i] - xb[i]).max(), ti.abs(va[i] - vb[i]).max())

@@ -109,6 +109,7 @@ class Integrator:
         h: float,
         step: ti.i32,
     ):
+        ti.loop_config(serialize=model.serial)
         for i in range(model.particle_count):
             if model.alive(state, i, ta):
                 self._finish(
@@ -130,6 +131,7 @@ class Integrator:
         vd: ti.template(),
         ta: float,
     ):
+        ti.loop_config(serialize=model.serial)
         for i in range(model.particle_count):
             if model.alive(state, i, ta):
                 xd[i] = xs[i]

@@ -79,6 +79,7 @@ class IntegratorRungeKutta(Integrator):
         t: float,
         h: float,
     ):
+        ti.loop_config(serialize=model.serial)
         for i in range(model.particle_count):
             if model.alive(state, i, ta):
                 x, v = self._stage_state(i, xi, vi, s, h)
@@ -101,6 +102,7 @@ class IntegratorRungeKutta(Integrator):
         finish: ti.template(),
     ):
         last = ti.static(self.stages - 1)
+        ti.loop_config(serialize=model.serial)
         for i in range(model.particle_count):
             if model.alive(state, i, ta):
                 x0 = xi[i]

@@ -34,6 +34,7 @@ class IntegratorSymplecticEuler(Integrator):
         step: ti.i32,
         finish: ti.template(),
     ):
+        ti.loop_config(serialize=model.serial)
         for i in range(model.particle_count):
             if model.alive(state, i, ta):
                 x0 = xi[i]
