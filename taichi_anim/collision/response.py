@@ -29,6 +29,17 @@ def respond(v, n, restitution, friction):
 
 @ti.func
 def _project(colliders: ti.template(), x, v):
+    # One branch for the common case (touching nothing), not one per collider.
+    clear = True
+    for c in ti.static(colliders):
+        clear = clear and c.sdf(x) >= 0.0
+    if not clear:
+        x, v = _project_each(colliders, x, v)
+    return x, v
+
+
+@ti.func
+def _project_each(colliders: ti.template(), x, v):
     for c in ti.static(colliders):
         d = c.sdf(x)
         if d < 0.0:

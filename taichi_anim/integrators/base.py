@@ -87,12 +87,8 @@ class Integrator:
         x, v = x1, v1
         if ti.static(model.collider_count > 0):
             x, v = collide(model.colliders, self.collision_mode, x0, v0, x1, v1, h)
-        if (
-            ti.math.isnan(x).any()
-            or ti.math.isinf(x).any()
-            or ti.math.isnan(v).any()
-            or ti.math.isinf(v).any()
-        ):
+        total = x.sum() + v.sum()  # NaN or inf in any component makes the sum NaN or inf
+        if ti.math.isnan(total) or ti.math.isinf(total):
             ti.atomic_add(state.nonfinite_count[None], 1)
             ti.atomic_min(state.nonfinite_step[None], step)
         state.particle_x[i] = x
