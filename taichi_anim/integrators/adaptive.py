@@ -80,7 +80,7 @@ class IntegratorAdaptive(Integrator):
                     )
                 continue
             self.accepted += 1
-            w, half = half, w
+            self._copy(model, state, xs[half], vs[half], xs[w], vs[w], ta)  # fixed roles: no recompiles
             done += h
             h_next = 2.0 * h if err < lower else h
         self.h = h_next

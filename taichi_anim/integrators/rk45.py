@@ -79,21 +79,22 @@ class IntegratorRK45(IntegratorRungeKutta):
         xs, vs = self.scratch.x, self.scratch.v
         ta, step = state.time, state.step_count + 1
         self._copy(model, state, state.particle_x, state.particle_v, xs[0], vs[0], ta)
-        cur, done = 0, 0.0
+        # Fixed roles (work = xs[0], candidate = xs[1]) and a copy on accept: swapping the fields instead
+        # would compile a second kernel instance in the middle of a run (fields are template arguments).
+        done = 0.0
         h_next = self.h or dt
         while dt - done > 1e-12 * dt:
             h = min(h_next, dt - done)
             self.error[None] = 0.0
-            self.advance(
-                model, state, xs[cur], vs[cur], xs[1 - cur], vs[1 - cur], ta, ta + done, h, step, False
-            )
+            self.advance(model, state, xs[0], vs[0], xs[1], vs[1], ta, ta + done, h, step, False)
             err = float(self.error[None])
             if not math.isfinite(err):
                 raise DivergenceError(
                     f"rk45: non-finite error estimate at step {step} (t={ta + done:g} s, h={h:g} s)"
                 )
             if err <= 1.0:
-                cur, done = 1 - cur, done + h
+                self._copy(model, state, xs[1], vs[1], xs[0], vs[0], ta)
+                done += h
                 self.accepted += 1
                 h_next = h * (5.0 if err == 0.0 else min(5.0, 0.9 * err**-0.2))
             else:
@@ -104,4 +105,4 @@ class IntegratorRK45(IntegratorRungeKutta):
                     f"rk45: step size {h_next:g} s fell below h_min={self.h_min:g} s at step {step}"
                 )
         self.h = h_next
-        self._finish_all(model, state, xs[cur], vs[cur], ta, dt, step)
+        self._finish_all(model, state, xs[0], vs[0], ta, dt, step)
