@@ -29,11 +29,12 @@ def respond(v, n, restitution, friction):
 
 @ti.func
 def _project(colliders: ti.template(), x, v):
-    # One branch for the common case (touching nothing), not one per collider.
-    clear = True
+    # One branch for the common case (touching nothing), not one per collider: a branch-free minimum
+    # (a short-circuit `and` would compile to one branch per collider again).
+    nearest = ti.cast(1e30, float)
     for c in ti.static(colliders):
-        clear = clear and c.sdf(x) >= 0.0
-    if not clear:
+        nearest = ti.min(nearest, c.sdf(x))
+    if nearest < 0.0:
         x, v = _project_each(colliders, x, v)
     return x, v
 
