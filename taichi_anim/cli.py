@@ -45,7 +45,11 @@ def _demo(args) -> int:
         if problem:
             print(f"taichi-anim: --view is not possible here: {problem}", file=sys.stderr)
             return 2
-    runtime.init(args.arch)
+    try:
+        runtime.init(args.arch)
+    except RuntimeError as e:  # e.g. --arch cuda on a machine without CUDA
+        print(f"taichi-anim: error: {e}", file=sys.stderr)
+        return 2
     options = {"seed": args.seed}
     if args.integrator:
         options["integrator"] = args.integrator

@@ -55,3 +55,13 @@ def test_view_without_display_says_what_is_missing(monkeypatch, capsys):
     assert main(["demo", "--view", "--frames", "1"]) == 2
     err = capsys.readouterr().err
     assert "--view is not possible here" in err and "display" in err.lower()
+
+
+def test_unavailable_backend_is_a_clear_error(capsys):
+    try:
+        ta.init("cuda")
+        pytest.skip("CUDA is available here")
+    except RuntimeError:
+        pass
+    assert main(["demo", "--arch", "cuda", "--frames", "1", "--quiet"]) == 2
+    assert "arch='cuda' was requested but Taichi could not start it" in capsys.readouterr().err
