@@ -65,3 +65,34 @@ def test_unavailable_backend_is_a_clear_error(capsys):
         pass
     assert main(["demo", "--arch", "cuda", "--frames", "1", "--quiet"]) == 2
     assert "arch='cuda' was requested but Taichi could not start it" in capsys.readouterr().err
+
+
+def test_view_opens_a_window_under_xvfb(tmp_path):
+    import shutil
+    import subprocess
+    import sys
+
+    from taichi_anim.viewer import vulkan_problem
+
+    if shutil.which("xvfb-run") is None or vulkan_problem(show_window=False):
+        pytest.skip(
+            "needs xvfb-run and a Vulkan driver (apt-get install xvfb libvulkan1 mesa-vulkan-drivers)"
+        )
+    cmd = [
+        "xvfb-run",
+        "-a",
+        sys.executable,
+        "-m",
+        "taichi_anim",
+        "demo",
+        "--view",
+        "--frames",
+        "5",
+        "--quiet",
+        "--out",
+        str(tmp_path),
+    ]
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "fountain: 5 frames" in out.stdout
+    assert json.loads((tmp_path / "run.json").read_text())["timings"]["frames"] == 5
