@@ -17,6 +17,7 @@ from enum import Enum
 import taichi as ti
 
 from ..rng import uniform
+from ..runtime import serial_loops
 
 
 class EmitterShape(Enum):
@@ -98,7 +99,8 @@ class Emitter:
         # Bits of the first and last word that belong to this emitter's slot range.
         self.mask_lo = (0xFFFFFFFF << (start & 31)) & 0xFFFFFFFF
         self.mask_hi = 0xFFFFFFFF >> (31 - ((end - 1) & 31))
-        self.cursor = 0
+        self.serial = serial_loops(self.capacity)
+        self.cursor = ti.field(ti.i32, ())  # word the next scan starts at (kept on the device: no sync)
         self.carry = 0.0
 
     def settings(self) -> dict:
@@ -114,15 +116,15 @@ class Emitter:
         self.carry = want - int(want)
         if n == 0:
             return
-        self.cursor = self._find_free(state, n, self.cursor)
-        self._spawn(state, t, seed, step)
+        self._emit(state, n, t, seed, step)
 
     @ti.kernel
-    def _find_free(self, state: ti.template(), n: ti.i32, start_word: ti.i32) -> ti.i32:
+    def _emit(self, state: ti.template(), n: ti.i32, t: float, seed: ti.u32, step: ti.u32):
+        # One launch: a serial scan for free slots, then a parallel spawn into them.
         words = self.word_hi - self.word_lo + 1
-        cursor = start_word
         ti.loop_config(serialize=True)
         for _ in range(1):
+            cursor = self.cursor[None]
             found = 0
             scanned = 0
             while found < n and scanned < words:
@@ -143,7 +145,10 @@ class Emitter:
                     cursor = (cursor + 1) % words
                     scanned += 1
             self.found[None] = found
-        return cursor
+            self.cursor[None] = cursor
+        ti.loop_config(serialize=self.serial)
+        for j in range(self.found[None]):
+            self._spawn_one(state, j, t, seed, step)
 
     @ti.func
     def _sample(self, seed, step, j):
@@ -174,15 +179,14 @@ class Emitter:
         life = self.s.lifetime * (1.0 + self.s.lifetime_jitter * (2.0 * r[6] - 1.0))
         return pos, speed * dirn, life
 
-    @ti.kernel
-    def _spawn(self, state: ti.template(), t: float, seed: ti.u32, step: ti.u32):
-        for j in range(self.found[None]):
-            i = self.slot[j]
-            x, v, life = self._sample(seed, step, ti.cast(self.start + j, ti.u32))
-            state.particle_x[i] = x
-            state.particle_v[i] = v
-            state.particle_birth[i] = t
-            state.particle_death[i] = t + life
-            if ti.static(state.trail_length > 0):
-                for k in range(state.trail_length):
-                    state.trail[i, k] = x
+    @ti.func
+    def _spawn_one(self, state: ti.template(), j, t, seed, step):
+        i = self.slot[j]
+        x, v, life = self._sample(seed, step, ti.cast(self.start + j, ti.u32))
+        state.particle_x[i] = x
+        state.particle_v[i] = v
+        state.particle_birth[i] = t
+        state.particle_death[i] = t + life
+        if ti.static(state.trail_length > 0):
+            for k in range(state.trail_length):
+                state.trail[i, k] = x
