@@ -94,5 +94,6 @@ class State:
 
     @ti.kernel
     def record_trails(self, head: ti.i32):
+        ti.loop_config(serialize=self.model.serial)  # same launch-cost choice as the integrators
         for i in range(self.particle_x.shape[0]):
             self.trail[i, head] = self.particle_x[i]
