@@ -24,6 +24,9 @@ class Builder:
         self._x: list[np.ndarray] = []
         self._v: list[np.ndarray] = []
         self._m: list[np.ndarray] = []
+        self._r: list[np.ndarray] = []
+        self._contacts: dict | None = None
+        self._containers: list[tuple[np.ndarray, np.ndarray]] = []
         self._emitters: list[EmitterSettings] = []
         self._gravity: tuple | None = None
         self._drag: list[tuple[float, tuple]] = []
@@ -37,9 +40,10 @@ class Builder:
         """Particles added so far (emitter slots not included)."""
         return sum(len(a) for a in self._x)
 
-    def add_particles(self, x, v=None, mass=1.0) -> range:
+    def add_particles(self, x, v=None, mass=1.0, *, radius=0.0) -> range:
         """Add particles: x (N,3) [m], v (N,3) [m/s] (default 0), mass [kg] scalar or (N,); mass 0 pins
-        a particle. Returns their indices."""
+        a particle; radius [m] scalar or (N,) (0: a point; > 0: a hard sphere for sphere contacts and
+        colliders). Returns their indices."""
         x = validate.finite_array("x", np.atleast_2d(x), (3,))
         v = np.zeros_like(x) if v is None else validate.finite_array("v", np.atleast_2d(v), (3,))
         if v.shape != x.shape:
@@ -47,15 +51,19 @@ class Builder:
         m = np.broadcast_to(np.asarray(mass, dtype=np.float64), (len(x),)).copy()
         if not np.all(np.isfinite(m)) or np.any(m < 0):
             raise ParameterError(f"mass must be finite and >= 0 (0 pins a particle), got {mass!r}")
+        r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(x),)).copy()
+        if not np.all(np.isfinite(r)) or np.any(r < 0):
+            raise ParameterError(f"radius must be finite and >= 0, got {radius!r}")
         start = self.particle_count
         self._x.append(x)
         self._v.append(v)
         self._m.append(m)
+        self._r.append(r)
         return range(start, start + len(x))
 
-    def add_particle(self, x, v=(0.0, 0.0, 0.0), mass: float = 1.0) -> int:
+    def add_particle(self, x, v=(0.0, 0.0, 0.0), mass: float = 1.0, *, radius: float = 0.0) -> int:
         """Add one particle and return its index."""
-        return self.add_particles([x], [v], mass)[0]
+        return self.add_particles([x], [v], mass, radius=radius)[0]
 
     def add_particle_emitter(
         self,
@@ -73,6 +81,7 @@ class Builder:
         lifetime: float = 1.0,
         lifetime_jitter: float = 0.0,
         mass: float = 1.0,
+        particle_radius: float = 0.0,
         color_start=(1.0, 0.9, 0.3),
         color_end=(0.8, 0.1, 0.05),
     ) -> int:
@@ -80,7 +89,8 @@ class Builder:
 
         rate [particles/s]; shape point/disc/sphere/box; radius [m] (disc, sphere); half_extents [m] (box);
         direction: mean velocity direction (disc normal); speed [m/s] with relative speed_jitter; spread:
-        cone half-angle [rad]; lifetime [s] with relative lifetime_jitter; mass [kg]; colours RGB in [0,1]
+        cone half-angle [rad]; lifetime [s] with relative lifetime_jitter; mass [kg]; particle_radius [m]
+        (0: points, > 0: hard spheres); colours RGB in [0,1]
         at birth and death. Returns the emitter index.
         """
         try:
@@ -105,6 +115,7 @@ class Builder:
             lifetime=validate.positive("lifetime", lifetime),
             lifetime_jitter=validate.in_range("lifetime_jitter", lifetime_jitter, 0.0, 1.0),
             mass=validate.positive("mass", mass),
+            particle_radius=validate.non_negative("particle_radius", particle_radius),
             capacity=capacity,
             color_start=validate.vec3("color_start", color_start),
             color_end=validate.vec3("color_end", color_end),
@@ -175,11 +186,47 @@ class Builder:
         if solid:
             self._colliders.append(ColliderSolidBox(tuple(lo), tuple(hi), e, mu))
             return
+        self._containers.append((lo, hi))
         for axis in range(3):
             n = np.zeros(3)
             n[axis] = 1.0
             self._colliders.append(ColliderPlane(tuple(n), lo[axis], e, mu))
             self._colliders.append(ColliderPlane(tuple(-n), -hi[axis], e, mu))
+
+    def add_sphere_contacts(
+        self,
+        *,
+        restitution: float = 0.5,
+        friction: float = 0.0,
+        iterations: int = 1,
+        relaxation: float = 2.0,
+        rest_speed: float = 0.05,
+        continuous: bool = False,
+        max_substeps: int = 256,
+        neighbor_search: str = "auto",
+    ) -> None:
+        """Hard-sphere contacts between particles with radius > 0 (collision/spheres.py).
+
+        restitution e in [0, 1] (the course's formula is e = 1/2) along the line of centres; friction:
+        Coulomb coefficient; iterations: Jacobi sweeps of position projection per step (for piles, more
+        substeps beat more iterations: the overlap a sweep leaves scales with dt^2); relaxation omega in
+        [1, 2]: a sphere with n overlaps moves min(1, omega/n) times their summed corrections;
+        rest_speed [m/s]: slower impacts do not bounce (so piles come to rest); continuous: substeps so
+        fast spheres cannot pass through each other or a wall (at most max_substeps); neighbor_search:
+        "auto" (brute force for small scenes, a grid over the container box if there is one, else a
+        hashed grid), "brute", "grid", "hash_grid".
+        """
+        validate.choice("neighbor_search", neighbor_search, ["auto", "brute", "grid", "hash_grid"])
+        self._contacts = dict(
+            restitution=validate.in_range("restitution", restitution, 0.0, 1.0),
+            friction=validate.non_negative("friction", friction),
+            iterations=validate.count("iterations", iterations, 1),
+            relaxation=validate.in_range("relaxation", relaxation, 1.0, 2.0),
+            rest_speed=validate.non_negative("rest_speed", rest_speed),
+            continuous=bool(continuous),
+            max_substeps=validate.count("max_substeps", max_substeps, 1),
+            neighbor_search=neighbor_search,
+        )
 
     def add_particle_trails(self, length: int) -> None:
         """Keep the last `length` positions of every particle (exported as line sets)."""
@@ -194,6 +241,7 @@ class Builder:
         x = [*self._x]
         v = [*self._v]
         m = [*self._m]
+        r = [*self._r]
         start = self.particle_count
         emitters = []
         for k, es in enumerate(self._emitters):
@@ -201,8 +249,18 @@ class Builder:
             x.append(np.tile(es.center, (es.capacity, 1)))
             v.append(np.zeros((es.capacity, 3)))
             m.append(np.full(es.capacity, es.mass))
+            r.append(np.full(es.capacity, es.particle_radius))
             start += es.capacity
         x_all = np.concatenate(x)
+        r_all = np.concatenate(r)
+        contacts = None
+        if self._contacts is not None:
+            if r_all.max() <= 0.0:
+                raise ParameterError(
+                    "add_sphere_contacts needs particles with radius > 0 (add_particles(radius=...) or "
+                    "add_particle_emitter(particle_radius=...)); every radius is 0"
+                )
+            contacts = dict(self._contacts, domain=self._contact_domain())
         terms: list = []
         if self._gravity is not None:
             terms.append(Gravity(self._gravity))
@@ -221,10 +279,20 @@ class Builder:
             x=x_all,
             v=np.concatenate(v),
             mass=np.concatenate(m),
+            radius=r_all,
             terms=terms,
             colliders=self._colliders,
             emitters=emitters,
             trail_length=self._trail_length,
             seed=seed,
             settings=settings,
+            contacts=contacts,
         )
+
+    def _contact_domain(self):
+        """The container box spheres live in (the bounded grid's domain), or None (hashed grid)."""
+        if not self._containers:
+            return None
+        lo = np.min([c[0] for c in self._containers], axis=0)
+        hi = np.max([c[1] for c in self._containers], axis=0)
+        return lo, hi

@@ -16,7 +16,7 @@ def _parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help=f"run a demo scene (default: {DEFAULT_SCENE})")
     d.add_argument("name", nargs="?", default=DEFAULT_SCENE, help="demo to run (see --list)")
     d.add_argument("--list", action="store_true", help="list the demos and exit")
-    d.add_argument("--frames", type=int, default=120, help="frames to simulate (default 120)")
+    d.add_argument("--frames", type=int, default=None, help="frames to simulate (default: the scene's own)")
     d.add_argument("--out", default=None, help="output directory (default out/NAME)")
     d.add_argument("--arch", choices=runtime.ARCHS, default="cpu", help="Taichi backend (default cpu)")
     d.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -35,7 +35,7 @@ def _demo(args) -> int:
         for name, text in describe().items():
             print(f"{name:12s} {text}")
         return 0
-    if args.frames < 1:
+    if args.frames is not None and args.frames < 1:
         raise ParameterError(f"--frames must be >= 1, got {args.frames}")
     viewer = None
     if args.view:
@@ -65,7 +65,7 @@ def _demo(args) -> int:
     out = args.out or f"out/{args.name}"
     summary = run_scene(
         scene,
-        frames=args.frames,
+        frames=args.frames or scene.frames,
         out_dir=out,
         export=not args.no_export,
         progress=not args.quiet,

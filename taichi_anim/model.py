@@ -5,6 +5,7 @@ compiles and runs only what it has (STYLE.md: "model only what a scene needs")."
 import numpy as np
 import taichi as ti
 
+from .collision.spheres import ContactSpheres
 from .runtime import np_float, serial_loops
 from .state import ALIVE_FOREVER, State
 
@@ -13,7 +14,9 @@ from .state import ALIVE_FOREVER, State
 class Model:
     """Built by `Builder.finalize()`. particle_count includes every emitter's slots."""
 
-    def __init__(self, *, x, v, mass, terms, colliders, emitters, trail_length, seed, settings):
+    def __init__(
+        self, *, x, v, mass, radius, terms, colliders, emitters, trail_length, seed, settings, contacts=None
+    ):
         n = len(x)
         self.particle_count = n
         self.terms = list(terms)
@@ -39,7 +42,24 @@ class Model:
             self.particle_inv_mass.from_numpy(inv.astype(np_float()))
         self._uniform_inv = 1.0 / self.uniform_mass if self.uniform_mass else 0.0
         self._per_particle_mass = self.uniform_mass is None  # kernels branch on this at compile time
+        radii = np.asarray(radius, dtype=np.float64)
+        # Radii [m]: all zero for point particles (a compile-time 0 then), one value, or one per particle.
+        self.max_radius = float(radii.max())
+        self.min_radius = float(radii.min())
+        self.uniform_radius = self.max_radius if self.max_radius == self.min_radius else None
+        self.particle_radius = None
+        self._per_particle_radius = self.uniform_radius is None  # compile-time branch in kernels
+        if self.uniform_radius is None:
+            self.particle_radius = ti.field(float, n)
+            self.particle_radius.from_numpy(radii.astype(np_float()))
         self._static_count = n - sum(e.capacity for e in self.emitters)
+        # Sphere contacts (collision/spheres.py) when the scene asked for them; else None.
+        self.contacts = None
+        self.rest_speed = -1.0  # below it impacts do not bounce; < 0: every impact bounces
+        if contacts is not None:
+            self.contacts = ContactSpheres(model=self, **contacts)
+            self.rest_speed = self.contacts.rest_speed
+            self.settings["sphere_contacts"] = self.contacts.settings()
         # Small scenes are launch-bound on the CPU: their particle loops run serially (compile-time).
         self.serial = serial_loops(n)
 
@@ -78,6 +98,13 @@ class Model:
         if ti.static(self._per_particle_mass):
             w = self.particle_inv_mass[i]
         return w
+
+    @ti.func
+    def radius(self, i):
+        r = ti.cast(self.uniform_radius or 0.0, float)
+        if ti.static(self._per_particle_radius):
+            r = self.particle_radius[i]
+        return r
 
     @ti.func
     def alive(self, state: ti.template(), i, t):
@@ -125,6 +152,12 @@ class Model:
     @ti.func
     def accel(self, i, x, v, t):
         return self.force(i, x, v, t) * self.inv_mass(i)
+
+    def particle_radii(self, idx: np.ndarray) -> np.ndarray:
+        """(N,) radii [m] of particles idx (0 for points)."""
+        if self.particle_radius is None:
+            return np.full(len(idx), self.max_radius)
+        return self.particle_radius.to_numpy()[idx]
 
     def particle_colors(self, idx: np.ndarray, age: np.ndarray, life: np.ndarray) -> np.ndarray:
         """(N,3) colours in [0,1]: each emitter's ramp over normalised age; grey for other particles."""

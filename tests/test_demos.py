@@ -40,6 +40,22 @@ def test_fountain_particles_stay_in_box_and_trails_export(tmp_path):
     assert len(lines["lines"]) > len(snap.x)  # several segments per particle
 
 
+def test_spheres_demo_exports_radii_and_keeps_spheres_in_the_box(tmp_path):
+    ta.init("cpu")
+    scene = make_scene("spheres", particles=5000)
+    assert scene.model.contacts.neighbors.method.value == "grid"  # 5000 > crossover, box given
+    for _ in range(12):  # 0.4 s: the column has hit the floor
+        scene.advance_frame()
+    cloud = read_point_cloud(scene.export_frame(tmp_path, 0)[0])
+    r = scene.options["radius"]
+    assert np.allclose(cloud["radius"], r)
+    lo, hi = (np.array(b) for b in scene.bounds)
+    assert np.all(cloud["points"] >= lo + r - 1e-4) and np.all(cloud["points"] <= hi - r + 1e-4)
+    assert cloud["points"][:, 1].min() < 2 * r  # some lie on the floor
+    overlap, contacts = scene.model.contacts.overlap_stats(scene.state)
+    assert contacts > 1000 and overlap < 0.25 * r  # mid-impact, one sweep per 1/1200 s step
+
+
 def test_cli_lists_demos_and_rejects_bad_input(capsys):
     assert main(["demo", "--list"]) == 0
     assert "fountain" in capsys.readouterr().out

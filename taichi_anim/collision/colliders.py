@@ -1,8 +1,9 @@
 """Static colliders as signed distances (positive outside the solid) with a swept segment test.
 
 Each collider provides `@ti.func`s: `sdf(x)`, `normal(x)` (outward, for projection) and
-`sweep(x0, x1) -> (tau, n)`: the fraction tau in [0, 1] of the segment x0 -> x1 at which it enters the
-solid (2.0 if it does not) and the entered face's normal. Segment-box uses the slab method
+`sweep(x0, x1, r) -> (tau, n)`: the fraction tau in [0, 1] of the segment x0 -> x1 at which a sphere of
+radius r (0 for a point) centred on it touches the solid (2.0 if it does not), and the touched face's
+normal. A sphere touches when sdf(x) < r. Segment-box uses the slab method
 (Kay & Kajiya, "Ray Tracing Complex Scenes", 1986).
 """
 
@@ -55,9 +56,9 @@ class ColliderPlane:
         return ti.Vector(self.n, dt=float)
 
     @ti.func
-    def sweep(self, x0, x1):
-        d0 = self.sdf(x0)
-        d1 = self.sdf(x1)
+    def sweep(self, x0, x1, r):
+        d0 = self.sdf(x0) - r
+        d1 = self.sdf(x1) - r
         tau = NO_HIT
         if d0 >= 0.0 and d1 < 0.0:
             tau = d0 / (d0 - d1)
@@ -114,9 +115,10 @@ class ColliderSolidBox:
         return n
 
     @ti.func
-    def sweep(self, x0, x1):
-        lo = ti.Vector(self.lo, dt=float)
-        hi = ti.Vector(self.hi, dt=float)
+    def sweep(self, x0, x1, r):
+        # The box grown by r on every side (its corners square, not rounded: conservative).
+        lo = ti.Vector(self.lo, dt=float) - r
+        hi = ti.Vector(self.hi, dt=float) + r
         d = x1 - x0
         t_enter = -1e30
         t_exit = 1e30
@@ -135,7 +137,7 @@ class ColliderSolidBox:
                 t_exit = ti.min(t_exit, ti.max(ta, tb))
         tau = NO_HIT
         n = ti.Vector.zero(float, 3)
-        if t_enter <= t_exit and 0.0 <= t_enter <= 1.0 and self.sdf(x0) >= 0.0:
+        if t_enter <= t_exit and 0.0 <= t_enter <= 1.0 and self.sdf(x0) >= r:
             tau = t_enter
             n[axis] = -1.0 if d[axis] > 0.0 else 1.0
         return tau, n

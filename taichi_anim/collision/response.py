@@ -28,31 +28,43 @@ def respond(v, n, restitution, friction):
 
 
 @ti.func
-def _project(colliders: ti.template(), x, v):
+def _project(colliders: ti.template(), x, v, r, rest_speed):
     # One branch for the common case (touching nothing), not one per collider: a branch-free minimum
     # (a short-circuit `and` would compile to one branch per collider again).
     nearest = ti.cast(1e30, float)
     for c in ti.static(colliders):
         nearest = ti.min(nearest, c.sdf(x))
-    if nearest < 0.0:
-        x, v = _project_each(colliders, x, v)
+    if nearest < r:
+        x, v = _project_each(colliders, x, v, r, rest_speed)
     return x, v
 
 
 @ti.func
-def _project_each(colliders: ti.template(), x, v):
+def _project_each(colliders: ti.template(), x, v, r, rest_speed):
     for c in ti.static(colliders):
-        d = c.sdf(x)
+        d = c.sdf(x) - r
         if d < 0.0:
             n = c.normal(x)
             x -= d * n
-            v = respond(v, n, c.restitution, c.friction)
+            e = c.restitution
+            if -v.dot(n) <= rest_speed:
+                e = 0.0  # resting contact: no bounce
+            v = respond(v, n, e, c.friction)
     return x, v
 
 
 @ti.func
-def collide(colliders: ti.template(), mode: ti.template(), x0, v0, x1, v1, dt):
-    """End-of-step position and velocity after collisions; x0, v0 start the step, x1, v1 end it."""
+def project_spheres(colliders: ti.template(), x, v, r, rest_speed):
+    """A sphere of radius r [m] at x moved out of every collider it overlaps; approach speeds at or
+    below rest_speed [m/s] do not bounce."""
+    return _project(colliders, x, v, r, rest_speed)
+
+
+@ti.func
+def collide(colliders: ti.template(), mode: ti.template(), x0, v0, x1, v1, dt, r, rest_speed):
+    """End-of-step position and velocity after collisions; x0, v0 start the step, x1, v1 end it; r [m]
+    the particle's radius (0 for points); impacts at or below rest_speed [m/s] (< 0: none) do not
+    bounce."""
     x = x1
     v = v1
     if ti.static(mode == CollisionMode.BACKWARD):
@@ -64,14 +76,17 @@ def collide(colliders: ti.template(), mode: ti.template(), x0, v0, x1, v1, dt):
             e = 0.0
             mu = 0.0
             for c in ti.static(colliders):
-                tc, nc = c.sweep(xs, xe)
+                tc, nc = c.sweep(xs, xe, r)
                 if tc < tau:
                     tau, n, e, mu = tc, nc, c.restitution, c.friction
             if tau <= 1.0:
                 xh = xs + tau * (xe - xs)
                 # Velocity at impact interpolated along the step; the rest of the step keeps the
                 # step's velocity change (gravity keeps acting after the bounce).
-                vh = respond(vs + tau * (ve - vs), n, e, mu)
+                vi = vs + tau * (ve - vs)
+                if -vi.dot(n) <= rest_speed:
+                    e = 0.0
+                vh = respond(vi, n, e, mu)
                 rest = 1.0 - tau
                 ve = vh + rest * (ve - vs)
                 frac *= rest
@@ -79,4 +94,4 @@ def collide(colliders: ti.template(), mode: ti.template(), x0, v0, x1, v1, dt):
                 xe = xh + frac * dt * ve
         x, v = xe, ve
     # Safety net in both modes: nothing ends a step inside a collider (round-off, multiple contacts).
-    return _project(colliders, x, v)
+    return _project(colliders, x, v, r, rest_speed)

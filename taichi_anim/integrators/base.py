@@ -44,7 +44,19 @@ class Integrator:
         dt = validate.positive("dt", dt)
         if model.emitter_count:
             model.emit(state, dt)
-        self._step(model, state, dt)
+        contacts = model.contacts
+        if contacts is None:
+            self._step(model, state, dt)
+        else:
+            # Sphere contacts after every (sub)step; continuous contacts choose substeps from v_max.
+            n = contacts.substeps(state, dt)
+            h = dt / n
+            t0 = state.time
+            for k in range(n):
+                state.time = t0 + k * h
+                self._step(model, state, h)
+                contacts.solve(state, h, state.step_count + 1)
+            state.time = t0
         if state.trail_length:
             state.record_trails(state.trail_head)
             state.trail_head = (state.trail_head + 1) % state.trail_length
@@ -86,7 +98,9 @@ class Integrator:
     def _finish(self, model: ti.template(), state: ti.template(), i, x0, v0, x1, v1, h, step):
         x, v = x1, v1
         if ti.static(model.collider_count > 0):
-            x, v = collide(model.colliders, self.collision_mode, x0, v0, x1, v1, h)
+            x, v = collide(
+                model.colliders, self.collision_mode, x0, v0, x1, v1, h, model.radius(i), model.rest_speed
+            )
         total = x.sum() + v.sum()  # NaN or inf in any component makes the sum NaN or inf
         if ti.math.isnan(total) or ti.math.isinf(total):
             ti.atomic_add(state.nonfinite_count[None], 1)

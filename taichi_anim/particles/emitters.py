@@ -48,6 +48,7 @@ class EmitterSettings:
     capacity: int
     color_start: tuple[float, float, float]
     color_end: tuple[float, float, float]
+    particle_radius: float = 0.0  # [m]; > 0 makes hard spheres
 
 
 def _basis(direction):

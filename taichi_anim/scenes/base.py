@@ -18,7 +18,8 @@ from ..state import State
 @dataclass
 class Scene:
     """name, description; model, state, integrator; dt [s] per step, substeps per frame; bounds: (lo, hi)
-    [m] of the region worth looking at; point_radius [m] for rendering; options: the scene's own settings."""
+    [m] of the region worth looking at; point_radius [m] for rendering; options: the scene's own settings;
+    frames: the demo's default length."""
 
     name: str
     description: str
@@ -30,6 +31,7 @@ class Scene:
     bounds: tuple
     point_radius: float
     options: dict = field(default_factory=dict)
+    frames: int = 120  # what `taichi-anim demo NAME` runs without --frames
 
     @property
     def frame_dt(self) -> float:

@@ -77,6 +77,11 @@ def run_scene(
         "png": str(png),
         "arch": backend_name(),
     }
+    if model.contacts is not None:
+        overlap, contacts = model.contacts.overlap_stats(state)
+        summary["neighbor_search"] = model.contacts.neighbors.describe()
+        summary["sphere_contacts"] = contacts
+        summary["max_overlap_over_radius"] = overlap / model.min_radius
     settings = {**scene.settings(), "frames": frames, "export": export, **(extra_settings or {})}
     summary["manifest"] = str(write_manifest(out, settings, summary))
     return summary
@@ -84,8 +89,14 @@ def run_scene(
 
 def summary_line(s: dict) -> str:
     """One line per run: particles alive, ms per step, compile time, where the output went."""
+    spheres = ""
+    if "neighbor_search" in s:
+        spheres = (
+            f"neighbour search {s['neighbor_search']}, {s['sphere_contacts']} contacts, largest overlap "
+            f"{100 * s['max_overlap_over_radius']:.2f}% of the radius, "
+        )
     return (
         f"{s['scene']}: {s['frames']} frames, {s['steps']} steps on {s['arch']}: {s['particles_alive']} "
-        f"particles alive, {s['ms_per_step']:.3f} ms/step, compile {s['compile_s']:.2f} s, export "
+        f"particles alive, {spheres}{s['ms_per_step']:.3f} ms/step, compile {s['compile_s']:.2f} s, export "
         f"{s['export_s']:.2f} s ({s['files_written']} files), picture {s['png']}"
     )

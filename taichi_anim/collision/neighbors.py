@@ -1,0 +1,257 @@
+"""Neighbour search: a uniform grid built by counting sort, its hashed variant for unbounded domains, and
+the brute-force O(N^2) reference. One query for all of them: visit the particles near a point.
+
+Counting sort as in Green, "Particle Simulation using CUDA" (NVIDIA, 2010), sec. 3: cell index per
+particle, counts per cell, a prefix sum, then the particles' indices (and their positions) stored cell by
+cell, so a neighbour query reads contiguous memory. There is no per-cell capacity, so no neighbour is ever
+dropped. Spatial hash of the cell coordinates: Teschner et al., "Optimized Spatial Hashing for Collision
+Detection of Deformable Objects", VMV 2003, sec. 4.
+
+Query from Taichi scope: `for_each_neighbor(i, p, radius, visit, ret)` calls `visit(i, k, ret)` for every
+slot k whose build-time position sorted_x[k] lies within `radius` of p (radius <= the structure's
+`radius`); `for_each_candidate` visits a superset (every particle of the 3^3 cells around p) for callers
+that test distances on positions that moved since the build. `i` is passed through to `visit` (the
+caller's own index); `ret` is the caller's accumulator, passed by reference.
+"""
+
+from enum import Enum
+
+import numpy as np
+import taichi as ti
+
+from .. import validate
+from ..errors import ParameterError
+from .prefix_sum import PrefixSum
+
+# Below this many particles brute force is faster than building a grid (benchmarks/neighbors.py).
+CROSSOVER_N = 2000
+# A bounded grid keeps at most this many cells per particle (bigger cells beyond it): the counting
+# sort's scan and clear passes are O(cells).
+MAX_CELLS_PER_PARTICLE = 32
+
+
+class NeighborMethod(Enum):
+    """BRUTE: every pair (O(N^2)); GRID: bounded uniform grid; HASH_GRID: hashed grid, unbounded."""
+
+    BRUTE = "brute"
+    GRID = "grid"
+    HASH_GRID = "hash_grid"
+
+
+@ti.data_oriented
+class _NeighborSearch:
+    """Common part: sorted_id[k] (slot -> particle), sorted_x[k] (build-time positions), size[None]."""
+
+    method = NeighborMethod.BRUTE
+
+    def __init__(self, capacity: int, radius: float):
+        self.capacity = validate.count("capacity", capacity, 1)
+        self.radius = validate.positive("radius", radius)
+        self.sorted_id = ti.field(ti.i32, self.capacity)
+        self.sorted_x = ti.Vector.field(3, float, self.capacity)
+        self.size = ti.field(ti.i32, ())
+        self._no_death = ti.field(float, 1)
+
+    def describe(self) -> str:
+        return f"{self.method.value} (capacity {self.capacity})"
+
+    def settings(self) -> dict:
+        return {"method": self.method.value, "radius": self.radius, "capacity": self.capacity}
+
+    def build(self, x, count: int | None = None, death=None, t: float = 0.0) -> None:
+        """Index particles [0, count) of the Vector field x [m]; with a `death` field [s], only those with
+        death > t (alive)."""
+        n = x.shape[0] if count is None else count
+        if n > self.capacity:
+            raise ParameterError(f"count must be <= capacity {self.capacity}, got {n}")
+        self._build(x, n, death if death is not None else self._no_death, float(t), death is not None)
+
+    @ti.func
+    def for_each_neighbor(self, i, p, radius, visit: ti.template(), ret: ti.template()):
+        self._cells(i, p, radius * radius, True, visit, ret)
+
+    @ti.func
+    def for_each_candidate(self, i, p, visit: ti.template(), ret: ti.template()):
+        self._cells(i, p, 0.0, False, visit, ret)
+
+    @ti.func
+    def _offer(self, i, k, p, r2, check: ti.template(), visit: ti.template(), ret: ti.template()):
+        if ti.static(check):
+            if (self.sorted_x[k] - p).norm_sqr() < r2:
+                visit(i, k, ret)
+        else:
+            visit(i, k, ret)
+
+
+@ti.data_oriented
+class NeighborBrute(_NeighborSearch):
+    """Every particle is a candidate of every query: the O(N^2) reference, and the fastest for small N."""
+
+    method = NeighborMethod.BRUTE
+
+    @ti.kernel
+    def _build(self, x: ti.template(), n: ti.i32, death: ti.template(), t: float, use_death: ti.template()):
+        ti.loop_config(serialize=True)  # order-preserving compaction; brute force is only for small N
+        for _ in range(1):
+            size = 0
+            for i in range(n):
+                ok = True
+                if ti.static(use_death):
+                    ok = death[i] > t
+                if ok:
+                    self.sorted_id[size] = i
+                    self.sorted_x[size] = x[i]
+                    size += 1
+            self.size[None] = size
+
+    @ti.func
+    def _cells(self, i, p, r2, check: ti.template(), visit: ti.template(), ret: ti.template()):
+        for k in range(self.size[None]):
+            self._offer(i, k, p, r2, check, visit, ret)
+
+
+@ti.data_oriented
+class NeighborGrid(_NeighborSearch):
+    """Uniform grid of cubic cells of side >= radius, counting-sorted.
+
+    domain=(lo, hi) [m]: a bounded grid over that box (particles outside are clamped into the border
+    cells, which stays correct, only slower). domain=None: cells are hashed into a table of 2^k >= 2N
+    buckets (Teschner et al. 2003), for unbounded scenes; a query then checks each candidate's own cell,
+    so two neighbour cells sharing a bucket never visit a particle twice."""
+
+    def __init__(self, capacity: int, radius: float, domain=None):
+        super().__init__(capacity, radius)
+        self.hashed = domain is None
+        self.method = NeighborMethod.HASH_GRID if self.hashed else NeighborMethod.GRID
+        h = self.radius
+        if self.hashed:
+            self.lo = (0.0, 0.0, 0.0)
+            self.dims = (0, 0, 0)
+            self.cell_count = 1 << max(6, int(np.ceil(np.log2(2 * self.capacity))))
+        else:
+            lo = np.asarray(validate.vec3("domain lo", domain[0]))
+            hi = np.asarray(validate.vec3("domain hi", domain[1]))
+            if np.any(hi <= lo):
+                raise ParameterError(f"domain must have lo < hi, got lo={lo}, hi={hi}")
+            limit = max(MAX_CELLS_PER_PARTICLE * self.capacity, 64)
+            while np.prod(np.ceil((hi - lo) / h)) > limit:
+                h *= 1.25  # bigger cells: fewer to clear and scan, more candidates per query
+            self.lo = tuple(float(c) for c in lo)
+            self.dims = tuple(int(max(1, np.ceil((b - a) / h))) for a, b in zip(lo, hi, strict=True))
+            self.cell_count = int(np.prod(self.dims))
+        self.cell_size = float(h)
+        self._inv_h = 1.0 / self.cell_size
+        c = self.cell_count
+        self.cell_particles = ti.field(ti.i32, c)
+        self.cell_start = ti.field(ti.i32, c + 1)
+        self.particle_cell = ti.field(ti.i32, self.capacity)
+        self.particle_rank = ti.field(ti.i32, self.capacity)
+        self._scan = PrefixSum(c)
+
+    def describe(self) -> str:
+        if self.hashed:
+            return f"hash_grid ({self.cell_count} buckets, cell {self.cell_size:.4g} m)"
+        d = "x".join(str(n) for n in self.dims)
+        return f"grid ({d} cells of {self.cell_size:.4g} m)"
+
+    def settings(self) -> dict:
+        out = super().settings()
+        out.update(cell_size=self.cell_size, cells=self.cell_count, dims=self.dims, lo=self.lo)
+        return out
+
+    @ti.func
+    def coords(self, p):
+        """Integer cell coordinates of point p (floor, so negative coordinates are right)."""
+        q = ti.floor((p - ti.Vector(self.lo, dt=float)) * self._inv_h)
+        q = ti.max(ti.min(q, 1.0e9), -1.0e9)  # keep the cast to i32 defined for far-away points
+        c = ti.cast(q, ti.i32)
+        if ti.static(not self.hashed):
+            c = ti.max(ti.min(c, ti.Vector(self.dims) - 1), 0)
+        return c
+
+    @ti.func
+    def key(self, c):
+        """Cell (or bucket) index of cell coordinates c."""
+        k = 0
+        if ti.static(self.hashed):
+            u = ti.cast(c, ti.u32)
+            h = (u[0] * ti.u32(73856093)) ^ (u[1] * ti.u32(19349663)) ^ (u[2] * ti.u32(83492791))
+            k = ti.cast(h & ti.u32(self.cell_count - 1), ti.i32)
+        else:
+            k = (c[0] * self.dims[1] + c[1]) * self.dims[2] + c[2]
+        return k
+
+    @ti.kernel
+    def _build(self, x: ti.template(), n: ti.i32, death: ti.template(), t: float, use_death: ti.template()):
+        for c in range(self.cell_count):
+            self.cell_particles[c] = 0
+        for i in range(n):
+            ok = True
+            if ti.static(use_death):
+                ok = death[i] > t
+            cell = -1
+            if ok:
+                cell = self.key(self.coords(x[i]))
+                self.particle_rank[i] = ti.atomic_add(self.cell_particles[cell], 1)
+            self.particle_cell[i] = cell
+        self._scan.exclusive(self.cell_particles, self.cell_start, self.cell_count)
+        for i in range(n):
+            cell = self.particle_cell[i]
+            if cell >= 0:
+                self.sorted_id[self.cell_start[cell] + self.particle_rank[i]] = i
+        # The atomic ranks depend on thread timing: sort each cell by particle index so every query
+        # visits neighbours in one order and float sums over them are reproducible.
+        for c in range(self.cell_count):
+            a = self.cell_start[c]
+            for k in range(a + 1, self.cell_start[c + 1]):
+                v = self.sorted_id[k]
+                m = k
+                while m > a and self.sorted_id[m - 1] > v:
+                    self.sorted_id[m] = self.sorted_id[m - 1]
+                    m -= 1
+                self.sorted_id[m] = v
+        self.size[None] = self.cell_start[self.cell_count]
+        for k in range(self.cell_start[self.cell_count]):
+            self.sorted_x[k] = x[self.sorted_id[k]]
+
+    @ti.func
+    def _cells(self, i, p, r2, check: ti.template(), visit: ti.template(), ret: ti.template()):
+        base = self.coords(p)
+        if ti.static(self.hashed):
+            for q in range(27):
+                c = base + ti.Vector([q // 9 - 1, (q // 3) % 3 - 1, q % 3 - 1])
+                key = self.key(c)
+                for k in range(self.cell_start[key], self.cell_start[key + 1]):
+                    # Other cells hashed to this bucket: skip (they are visited through their own).
+                    if (self.coords(self.sorted_x[k]) == c).all():
+                        self._offer(i, k, p, r2, check, visit, ret)
+        else:
+            # Cells adjacent in z are adjacent in memory: one contiguous slot range per (x, y) column.
+            z0 = ti.max(base[2] - 1, 0)
+            z1 = ti.min(base[2] + 1, self.dims[2] - 1)
+            for q in range(9):
+                cx = base[0] + q // 3 - 1
+                cy = base[1] + q % 3 - 1
+                if 0 <= cx < self.dims[0] and 0 <= cy < self.dims[1]:
+                    row = (cx * self.dims[1] + cy) * self.dims[2]
+                    for k in range(self.cell_start[row + z0], self.cell_start[row + z1 + 1]):
+                        self._offer(i, k, p, r2, check, visit, ret)
+
+
+def make_neighbor_search(capacity: int, radius: float, *, domain=None, method: str = "auto"):
+    """A neighbour structure for up to `capacity` particles and queries up to `radius` [m].
+
+    method: "brute", "grid" (needs domain=(lo, hi)), "hash_grid", or "auto": brute force below
+    CROSSOVER_N particles, else the bounded grid when a domain is given, else the hashed grid."""
+    names = [m.value for m in NeighborMethod] + ["auto"]
+    validate.choice("method", method, names)
+    if method == "auto":
+        if capacity < CROSSOVER_N:
+            method = "brute"
+        else:
+            method = "grid" if domain is not None else "hash_grid"
+    if method == "brute":
+        return NeighborBrute(capacity, radius)
+    if method == "grid" and domain is None:
+        raise ParameterError("method='grid' needs domain=(lo, hi); use 'hash_grid' without one")
+    return NeighborGrid(capacity, radius, domain if method == "grid" else None)

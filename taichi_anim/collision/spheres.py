@@ -1,0 +1,315 @@
+"""Hard-sphere contacts: projection back to contact split by inverse mass, then restitution and Coulomb
+friction along the line of centres (Witkin & Baraff course notes, "Particle dynamics", collisions;
+Baraff, "Physically Based Modeling: Rigid Body Simulation", sec. 8, eq. 8-18: the impulse along n is
+-(1 + e) v_rel.n / (1/m_a + 1/m_b), so each body takes its inverse-mass share and momentum is conserved).
+
+After the integrator's step (the prediction x*, v*), the contact pass rebuilds the neighbour structure
+on x* and runs, in cell order:
+1. `iterations` Jacobi sweeps of position projection: a sphere with n overlapping pairs moves by
+   min(1, omega / n) times the sum of their corrections, then out of the walls (Macklin et al., "Unified
+   Particle Physics for Real-Time Applications", SIGGRAPH 2014, sec. 4.2, eq. 11: averaging so dense
+   piles do not overshoot, with over-relaxation 1 <= omega <= 2; omega = 2 halved the largest overlap
+   of a 7-layer pile against the plain mean);
+2. velocities from positions, v = v* + (x - x*)/h, as in position-based dynamics (Müller et al. 2007,
+   alg. 1, line 12), which keeps resting piles from sinking;
+3. one velocity sweep over the pairs that overlapped at x* and were approaching: the relative normal
+   velocity becomes -e times its value before the solve (e = 0 below rest_speed, so resting contacts do
+   not jitter), and the tangential one loses at most mu times the normal change (Coulomb) (Müller et
+   al., "Detailed Rigid Body Simulation with Extended Position Based Dynamics", 2020, sec. 3.6).
+A single pair is solved exactly (a mean of one). Sweeps gather into ping-pong buffers: no float atomics,
+so a seed gives the same result at any thread count.
+"""
+
+import math
+import warnings
+
+import taichi as ti
+
+from .. import validate
+from .neighbors import make_neighbor_search
+from .response import project_spheres
+
+
+def accumulator_types():
+    """Per-sphere accumulators of the sweeps. Made after ti.init: a type made before it resolves
+    `float` to f32 whatever the chosen precision."""
+    vec3 = ti.types.vector(3, float)
+    position = ti.types.struct(x=vec3, r=float, w=float, dx=vec3, n=ti.i32)
+    velocity = ti.types.struct(
+        x=vec3, v=vec3, xp=vec3, vp=vec3, r=float, w=float, inv_h=float, dv=vec3, n=ti.i32
+    )
+    return position, velocity
+
+
+@ti.func
+def pair_projection(xi, ri, wi, xj, rj, wj):
+    """Position correction of sphere i that removes its share w_i / (w_i + w_j) of the overlap with j."""
+    d = xi - xj
+    dist = d.norm()
+    return wi / ti.max(wi + wj, 1e-30) * (ri + rj - dist) / dist * d
+
+
+@ti.func
+def pair_velocity(n, vi, wi, vj, wj, vn_before, e, mu, rest_speed):
+    """Velocity change of sphere i for a contact of normal n (from j to i) that approached at
+    vn_before = (v_i - v_j).n < 0 before the solve: the relative normal velocity becomes -e vn_before
+    (0 below rest_speed); the relative tangential velocity loses at most mu times the normal change."""
+    e_eff = e if -vn_before > rest_speed else 0.0
+    target = -e_eff * vn_before
+    vrel = vi - vj
+    vn = vrel.dot(n)
+    share = wi / ti.max(wi + wj, 1e-30)
+    dv = share * (target - vn) * n
+    vt = vrel - vn * n
+    vt_norm = vt.norm()
+    if mu > 0.0 and vt_norm > 1e-12:
+        dv -= share * ti.min(mu * (target - vn_before), vt_norm) / vt_norm * vt
+    return dv
+
+
+@ti.data_oriented
+class _PositionSide:
+    """One side of the position ping-pong: sphere centres in slot order."""
+
+    def __init__(self, owner, x):
+        self.owner = owner
+        self.x = x
+
+    @ti.func
+    def visit(self, i, k, ret: ti.template()):
+        if k != i:
+            o = self.owner
+            xj = self.x[k]
+            rj = o.slot_radius(k)
+            reach = ret.r + rj
+            d2 = (ret.x - xj).norm_sqr()
+            if 1e-24 < d2 < reach * reach:  # coincident centres have no normal: left to the next step
+                ret.dx += pair_projection(ret.x, ret.r, ret.w, xj, rj, o.slot_inv_mass(k))
+                ret.n += 1
+
+    @ti.func
+    def visit_velocity(self, i, k, ret: ti.template()):
+        """Restitution and friction for a pair that overlapped in the prediction and was approaching."""
+        if k != i:
+            o = self.owner
+            reach = ret.r + o.slot_radius(k)
+            d = ret.xp - o.x_pred[k]
+            d2 = d.norm_sqr()
+            if 1e-24 < d2 < reach * reach:
+                n = d / ti.sqrt(d2)
+                vn_before = (ret.vp - o.v_pred[k]).dot(n)
+                if vn_before < 0.0:
+                    # The normal of the solved positions: the one the projection separated along.
+                    ds = ret.x - self.x[k]
+                    ns = ds / ti.max(ds.norm(), 1e-30)
+                    vj = o.v_pred[k] + (self.x[k] - o.x_pred[k]) * ret.inv_h
+                    ret.dv += pair_velocity(
+                        ns, ret.v, ret.w, vj, o.slot_inv_mass(k), vn_before,
+                        o.restitution, o.friction, o.rest_speed,
+                    )  # fmt: skip
+                    ret.n += 1
+
+
+@ti.data_oriented
+class ContactSpheres:
+    """Sphere-sphere contacts of a model whose particles have radii, and sphere-collider contacts
+    (the colliders' restitution and friction, against the surface offset by the radius).
+
+    restitution e in [0, 1] (the course's formula is e = 1/2); friction mu >= 0; iterations: Jacobi
+    sweeps per step; rest_speed [m/s]: approach speeds below it do not bounce; continuous: split each
+    step into substeps so no sphere moves more than half the smallest radius relative to another (no
+    tunnelling through spheres or walls), at most max_substeps; neighbor_search: "auto" | "brute" |
+    "grid" | "hash_grid"; domain (lo, hi) [m] for the bounded grid (the scene's container), or None."""
+
+    def __init__(
+        self,
+        *,
+        model,
+        restitution: float,
+        friction: float,
+        iterations: int,
+        rest_speed: float,
+        continuous: bool,
+        max_substeps: int,
+        neighbor_search: str,
+        domain,
+        relaxation: float = 2.0,
+    ):
+        self.model = model
+        self.restitution = validate.in_range("restitution", restitution, 0.0, 1.0)
+        self.friction = validate.non_negative("friction", friction)
+        self.iterations = validate.count("iterations", iterations, 1)
+        self.relaxation = validate.in_range("relaxation", relaxation, 1.0, 2.0)
+        self.rest_speed = validate.non_negative("rest_speed", rest_speed)
+        self.continuous = bool(continuous)
+        self.max_substeps = validate.count("max_substeps", max_substeps, 1)
+        self._warned = False
+        n = model.particle_count
+        self.max_radius = model.max_radius
+        self.min_radius = model.min_radius
+        # A pair touches when |x_i - x_j| < r_i + r_j <= 2 r_max: cells of that size hold every contact.
+        self.neighbors = make_neighbor_search(n, 2.0 * self.max_radius, domain=domain, method=neighbor_search)
+        # Slot-order copies: the prediction x* is the neighbour structure's own sorted copy; v*, and the
+        # two sides of the position ping-pong.
+        self.x_pred = self.neighbors.sorted_x
+        self.v_pred = ti.Vector.field(3, float, n)
+        self.pred = _PositionSide(self, self.x_pred)
+        self.sides = [_PositionSide(self, ti.Vector.field(3, float, n)) for _ in range(2)]
+        self._per_slot = model._per_particle_radius or model._per_particle_mass
+        self.slot_r = ti.field(float, n) if self._per_slot else None
+        self.slot_w = ti.field(float, n) if self._per_slot else None
+        self._position_acc, self._velocity_acc = accumulator_types()
+        self.max_speed = ti.field(float, ())
+        self.overlap = ti.field(float, ())
+        self.contact_count = ti.field(ti.i32, ())
+
+    def settings(self) -> dict:
+        return {
+            "restitution": self.restitution,
+            "friction": self.friction,
+            "iterations": self.iterations,
+            "relaxation": self.relaxation,
+            "rest_speed": self.rest_speed,
+            "continuous": self.continuous,
+            "neighbor_search": self.neighbors.describe(),
+        }
+
+    @ti.func
+    def slot_radius(self, k):
+        r = ti.cast(self.model.uniform_radius or 0.0, float)
+        if ti.static(self._per_slot):
+            r = self.slot_r[k]
+        return r
+
+    @ti.func
+    def slot_inv_mass(self, k):
+        w = ti.cast(self.model._uniform_inv, float)
+        if ti.static(self._per_slot):
+            w = self.slot_w[k]
+        return w
+
+    # -- step ------------------------------------------------------------------------------------------
+
+    def substeps(self, state, dt: float) -> int:
+        """Substeps for this step: 1, or with `continuous` enough that 2 v_max h <= r_min / 2."""
+        if not self.continuous:
+            return 1
+        self._max_speed(state, state.time)
+        travel = 2.0 * float(self.max_speed[None]) * dt
+        need = max(1, math.ceil(travel / (0.5 * self.min_radius)))
+        if need > self.max_substeps and not self._warned:
+            warnings.warn(
+                f"sphere contacts: a step of {dt:g} s needs {need} substeps to keep spheres moving at "
+                f"{self.max_speed[None]:.3g} m/s from passing through each other; capped at "
+                f"max_substeps={self.max_substeps} (raise it or lower dt)",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+            self._warned = True
+        return int(min(self.max_substeps, need))
+
+    def solve(self, state, h: float, step: int) -> None:
+        """Resolve contacts after a step of size h (state holds its prediction, ending at time + h)."""
+        death = state.particle_death if state.has_lifetimes else None
+        self.neighbors.build(state.particle_x, death=death, t=state.time + h)
+        src, (a, b) = self.pred, self.sides
+        for it in range(self.iterations):
+            self._project(state, src, a, it == 0)
+            src, a, b = a, b, a
+        self._velocities(state, src, 1.0 / h, step)
+
+    @ti.func
+    def _gather(self, state: ti.template(), k):
+        """Slot k's predicted velocity (and radius, inverse mass) from the state, by particle index."""
+        i = self.neighbors.sorted_id[k]
+        self.v_pred[k] = state.particle_v[i]
+        if ti.static(self._per_slot):
+            self.slot_r[k] = self.model.radius(i)
+            self.slot_w[k] = self.model.inv_mass(i)
+
+    @ti.kernel
+    def _project(self, state: ti.template(), src: ti.template(), dst: ti.template(), first: ti.template()):
+        for k in range(self.neighbors.size[None]):
+            if ti.static(first):
+                self._gather(state, k)  # fused here: the projection itself needs no velocities
+            acc = self._position_acc(
+                x=src.x[k],
+                r=self.slot_radius(k),
+                w=self.slot_inv_mass(k),
+                dx=ti.Vector.zero(float, 3),
+                n=0,
+            )
+            self.neighbors.for_each_candidate(k, acc.x, src.visit, acc)
+            x = acc.x
+            if acc.n > 0:
+                x += acc.dx * ti.min(1.0, self.relaxation / acc.n)
+            if ti.static(self.model.collider_count > 0):
+                x, _ = project_spheres(self.model.colliders, x, ti.Vector.zero(float, 3), acc.r, 0.0)
+            dst.x[k] = x
+
+    @ti.kernel
+    def _velocities(self, state: ti.template(), side: ti.template(), inv_h: float, step: ti.i32):
+        ns = self.neighbors
+        for k in range(ns.size[None]):
+            x = side.x[k]
+            acc = self._velocity_acc(
+                x=x,
+                v=self.v_pred[k] + (x - self.x_pred[k]) * inv_h,  # v* + what the projection moved / h
+                xp=self.x_pred[k],
+                vp=self.v_pred[k],
+                r=self.slot_radius(k),
+                w=self.slot_inv_mass(k),
+                inv_h=inv_h,
+                dv=ti.Vector.zero(float, 3),
+                n=0,
+            )
+            ns.for_each_candidate(k, acc.xp, side.visit_velocity, acc)
+            v = acc.v
+            if acc.n > 0:
+                v += acc.dv / acc.n
+            total = x.sum() + v.sum()
+            if ti.math.isnan(total) or ti.math.isinf(total):
+                ti.atomic_add(state.nonfinite_count[None], 1)
+                ti.atomic_min(state.nonfinite_step[None], step)
+            i = ns.sorted_id[k]
+            state.particle_x[i] = x
+            state.particle_v[i] = v
+
+    @ti.kernel
+    def _max_speed(self, state: ti.template(), t: float):
+        self.max_speed[None] = 0.0
+        for i in range(self.model.particle_count):
+            if self.model.alive(state, i, t):
+                ti.atomic_max(self.max_speed[None], state.particle_v[i].norm())
+
+    # -- diagnostics -----------------------------------------------------------------------------------
+
+    def overlap_stats(self, state) -> tuple[float, int]:
+        """(largest overlap r_i + r_j - |x_i - x_j| [m] over all touching pairs, number of such pairs)
+        in the current state: the measure of how well the last solve separated the spheres."""
+        death = state.particle_death if state.has_lifetimes else None
+        self.neighbors.build(state.particle_x, death=death, t=state.time)
+        self._overlaps(state)
+        return float(self.overlap[None]), int(self.contact_count[None]) // 2
+
+    @ti.func
+    def _overlap_visit(self, i, k, ret: ti.template()):
+        if k != i:
+            gap = (ret.x - self.x_pred[k]).norm() - ret.r - self.slot_radius(k)
+            if gap < 0.0:
+                ret.dx[0] = ti.max(ret.dx[0], -gap)
+                ret.n += 1
+
+    @ti.kernel
+    def _overlaps(self, state: ti.template()):
+        self.overlap[None] = 0.0
+        self.contact_count[None] = 0
+        for k in range(self.neighbors.size[None]):
+            self._gather(state, k)
+        for k in range(self.neighbors.size[None]):
+            p = self._position_acc(
+                x=self.x_pred[k], r=self.slot_radius(k), w=0.0, dx=ti.Vector.zero(float, 3), n=0
+            )
+            self.neighbors.for_each_candidate(k, p.x, self._overlap_visit, p)
+            ti.atomic_max(self.overlap[None], p.dx[0])
+            ti.atomic_add(self.contact_count[None], p.n)

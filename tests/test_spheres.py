@@ -1,0 +1,208 @@
+"""Hard spheres: closed-form collisions (momentum, restitution, energy, Coulomb friction), Newton's
+cradle, continuous contacts against tunnelling, a 10^4-sphere pile that comes to rest, and the grid
+against brute force."""
+
+import numpy as np
+import pytest
+
+import taichi_anim as ta
+
+
+def spheres(x, v, *, mass=1.0, radius=0.1, gravity=False, box=None, **contacts):
+    b = ta.Builder()
+    if gravity:
+        b.add_force_gravity()
+    b.add_particles(np.asarray(x, float), np.asarray(v, float), mass=mass, radius=radius)
+    if box is not None:
+        b.add_collider_box(*box, restitution=0.5, friction=0.3)
+    b.add_sphere_contacts(**contacts)
+    model = b.finalize()
+    return model, model.state()
+
+
+def run(model, state, dt, steps, integrator="symplectic_euler", **options):
+    integ = ta.make_integrator(integrator, **options)
+    for _ in range(steps):
+        integ.step(model, state, dt)
+    return state.particle_x.to_numpy(), state.particle_v.to_numpy()
+
+
+@pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
+def test_head_on_unequal_masses(e):
+    """m1 v1 + m2 v2 is conserved exactly and v2' - v1' = -e (v2 - v1) (Newton's law of restitution)."""
+    m = np.array([1.0, 3.0])
+    v0 = np.array([[2.0, 0, 0], [-1.0, 0, 0]])
+    model, state = spheres([[-0.5, 0, 0], [0.5, 0, 0]], v0, mass=m, restitution=e, rest_speed=0.0)
+    x, v = run(model, state, 0.01, 60)
+    assert np.abs((m[:, None] * v).sum(0) - (m[:, None] * v0).sum(0)).max() < 1e-12
+    assert (v[1, 0] - v[0, 0]) == pytest.approx(e * 3.0, abs=1e-12)
+    v1 = (m @ v0[:, 0] - m[1] * e * 3.0) / m.sum()  # closed form: v1' = (p - m2 e (v1 - v2)) / M
+    assert v[0, 0] == pytest.approx(v1, abs=1e-12)
+    if e == 0.0:  # perfectly inelastic: they stay in contact, projected to exactly r1 + r2 apart
+        assert x[1, 0] - x[0, 0] == pytest.approx(0.2, abs=1e-12)
+
+
+def test_newtons_cradle_passes_the_impulse_down_the_row():
+    """Five equal balls with 0.1 mm gaps, e = 1: the first stops, the last leaves with its speed."""
+    r = 0.05
+    x = [[k * (2 * r + 1e-4), 0, 0] for k in range(5)]
+    v = np.zeros((5, 3))
+    v[0, 0] = 1.0
+    model, state = spheres(x, v, radius=r, restitution=1.0, rest_speed=0.0)
+    _, v = run(model, state, 1e-3, 200)
+    assert v[4, 0] == pytest.approx(1.0, abs=1e-9)
+    assert np.abs(v[:4]).max() < 1e-9
+    assert np.abs(v[:, 1:]).max() == 0.0
+
+
+def test_oblique_elastic_collision_conserves_energy_and_momentum():
+    """e = 1, frictionless, impact parameter half the contact distance, masses 1 and 2."""
+    m = np.array([1.0, 2.0])
+    v0 = np.array([[3.0, 0, 0], [0.0, 0, 0]])
+    x0 = [[-0.6, 0.1, 0.0], [0.0, 0.0, 0.0]]
+    model, state = spheres(x0, v0, mass=m, restitution=1.0, rest_speed=0.0)
+    x, v = run(model, state, 1e-3, 400)
+    ke0 = 0.5 * (m * (v0**2).sum(1)).sum()
+    ke = 0.5 * (m * (v**2).sum(1)).sum()
+    assert abs(ke - ke0) < 1e-12 * ke0
+    assert np.abs((m[:, None] * (v - v0)).sum(0)).max() < 1e-12
+    assert v[1, 1] < -0.1 and v[1, 0] > 0.1  # it really was oblique: the struck sphere moves off-axis
+    # Frictionless: the struck sphere moves along the line of centres at impact, which is 30 degrees
+    # below the x axis (impact parameter 0.1 = half the contact distance 0.2). The step detects the
+    # contact up to 3 mm deep (v dt), which tilts the normal by a few mrad.
+    n = np.array([np.cos(np.pi / 6), -np.sin(np.pi / 6), 0.0])
+    assert np.arccos(v[1] @ n / np.linalg.norm(v[1])) < 0.01
+
+
+@pytest.mark.parametrize("mu", [0.05, 2.0])
+def test_friction_removes_at_most_mu_times_the_normal_change(mu):
+    """Coulomb: |dv_t| = min(mu |dv_n|, |v_t|) on the relative velocity (sticks when mu is large)."""
+    e = 0.5
+    n = np.array([1.0, 0.0, 0.0])
+    vrel0 = np.array([-2.0, 1.5, 0.0])  # relative velocity of sphere 1 w.r.t. sphere 0 (along -n: closing)
+    model, state = spheres([[0, 0, 0], [0.2 - 1e-3, 0, 0]], [[0, 0, 0], vrel0], restitution=e, friction=mu)
+    x, v = run(model, state, 1e-4, 1)
+    # The projection moves the spheres along their line of centres, so the step's normal is the final one
+    # (tilted 0.75 mrad from x by the step's tangential motion).
+    n = (x[1] - x[0]) / np.linalg.norm(x[1] - x[0])
+    vn0 = vrel0 @ n
+    vt0 = vrel0 - vn0 * n
+    vrel = v[1] - v[0]
+    assert vrel @ n == pytest.approx(-e * vn0, abs=1e-12)
+    vt = vrel - (vrel @ n) * n
+    assert np.linalg.norm(vt) == pytest.approx(max(np.linalg.norm(vt0) + mu * (1 + e) * vn0, 0.0), abs=1e-12)
+
+
+def test_sphere_rests_on_the_floor_at_its_radius():
+    model, state = spheres([[0, 1.0, 0]], [[0, 0, 0]], radius=0.1, gravity=True, box=((-1, 0, -1), (1, 2, 1)))
+    x, v = run(model, state, 1 / 240, 600)
+    assert x[0, 1] == pytest.approx(0.1, abs=1e-9)
+    assert np.abs(v).max() < 1e-9
+
+
+def test_continuous_contacts_stop_fast_spheres_passing_through_each_other():
+    """Two 1 cm spheres closing at 60 m/s with dt = 1/60: a step moves them 1 m, 50 diameters."""
+    x = [[-0.5, 0, 0], [0.45, 0, 0]]
+    v = [[30.0, 0, 0], [-30.0, 0, 0]]
+    model, state = spheres(x, v, radius=0.01, restitution=1.0, rest_speed=0.0)
+    xa, _ = run(model, state, 1 / 60, 1)
+    assert xa[0, 0] > xa[1, 0]  # discrete contacts: they tunnelled through each other
+    model, state = spheres(x, v, radius=0.01, restitution=1.0, rest_speed=0.0, continuous=True)
+    xb, vb = run(model, state, 1 / 60, 1)
+    assert model.contacts.substeps(state, 1 / 60) in (200, 201)  # 2 v dt / (r / 2), rounded up
+    assert xb[0, 0] < xb[1, 0]
+    assert vb[:, 0] == pytest.approx([-30.0, 30.0], abs=1e-9)
+
+
+def test_continuous_contacts_stop_a_fast_sphere_at_a_thin_wall():
+    b = ta.Builder()
+    b.add_particle((0, 0, 0), (50.0, 0, 0), radius=0.01)
+    b.add_collider_box((0.3, -1, -1), (0.302, 1, 1), solid=True, restitution=1.0)
+    b.add_sphere_contacts(continuous=True)
+    model = b.finalize()
+    state = model.state()
+    x, v = run(model, state, 1 / 60, 1)
+    assert x[0, 0] <= 0.3 - 0.01 + 1e-9
+    assert v[0, 0] == pytest.approx(-50.0)
+
+
+def pile(n_side, layers, r, seed=0):
+    """Spheres on a jittered lattice above the floor of a box n_side spheres wide, random velocities."""
+    g = np.stack(np.meshgrid(*(np.arange(k) for k in (n_side, layers, n_side)), indexing="ij"), -1)
+    g = g.reshape(-1, 3)
+    half = n_side * 1.1 * r + r
+    rng = np.random.default_rng(seed)
+    x = (
+        g * 2.2 * r
+        + np.array([-half + 2 * r, 2 * r, -half + 2 * r])
+        + rng.uniform(-0.1 * r, 0.1 * r, g.shape)
+    )
+    v = rng.normal(0.0, 0.3, g.shape)
+    return x, v, ((-half, 0.0, -half), (half, 1.0, half))
+
+
+def test_pile_of_10000_spheres_comes_to_rest():
+    """45 x 45 x 5 spheres (r = 1 cm) fall into a box: no NaN, kinetic energy decays to a small
+    fraction of the potential energy they lost, the largest overlap ends below 1% of the radius."""
+    r, m = 0.01, 1e-3
+    x, v, box = pile(45, 5, r)
+    assert len(x) >= 10_000
+    model, state = spheres(x, v, mass=m, radius=r, gravity=True, box=box, friction=0.3)
+    assert model.contacts.neighbors.method.value == "grid"
+    integ = ta.make_integrator("symplectic_euler", check_every=100)
+    dt = 1 / 3600
+    kinetic = []
+    for step in range(2700):  # 0.75 s
+        integ.step(model, state, dt)  # raises DivergenceError on any NaN
+        if step % 300 == 299:
+            vs = state.particle_v.to_numpy()
+            kinetic.append(0.5 * m * (vs**2).sum())
+    xs = state.particle_x.to_numpy()
+    released = m * 9.81 * (x[:, 1] - xs[:, 1]).sum()
+    assert released > 0.5
+    assert kinetic[-1] < 0.01 * released and kinetic[-1] < kinetic[2]
+    overlap, contacts = model.contacts.overlap_stats(state)
+    assert contacts > 2 * len(x)  # a real pile: every sphere touches several others
+    assert overlap < 0.01 * r
+    lo, hi = np.array(box[0]), np.array(box[1])
+    assert np.all(xs >= lo + r - 1e-6) and np.all(xs <= hi - r + 1e-6)
+
+
+def test_grid_hash_grid_and_brute_force_agree():
+    """The same falling pile with each neighbour structure: the same contacts, so the same motion."""
+    r = 0.01
+    x, v, box = pile(12, 6, r, seed=3)
+    out = {}
+    for method in ("brute", "grid", "hash_grid"):
+        model, state = spheres(x, v, radius=r, gravity=True, box=box, neighbor_search=method)
+        assert model.contacts.neighbors.method.value == method
+        out[method], _ = run(model, state, 1 / 1200, 150)
+    moved = np.abs(out["brute"] - x).max()
+    assert moved > 2 * r
+    assert np.abs(out["grid"] - out["brute"]).max() < 1e-9
+    assert np.abs(out["hash_grid"] - out["brute"]).max() < 1e-9
+
+
+def test_same_result_on_one_and_two_threads():
+    r = 0.01
+    x, v, box = pile(20, 4, r, seed=5)
+
+    def result(threads):
+        ta.init("cpu", precision="f32", cpu_threads=threads)
+        model, state = spheres(x, v, radius=r, gravity=True, box=box, iterations=2)
+        return run(model, state, 1 / 1200, 100)[0]
+
+    assert np.array_equal(result(1), result(2))
+
+
+def test_bad_sphere_input_is_rejected():
+    with pytest.raises(ta.ParameterError, match="radius > 0"):
+        spheres([[0, 0, 0]], [[0, 0, 0]], radius=0.0)
+    with pytest.raises(ta.ParameterError, match="radius"):
+        spheres([[0, 0, 0]], [[0, 0, 0]], radius=-0.1)
+    with pytest.raises(ta.ParameterError, match="relaxation"):
+        spheres([[0, 0, 0]], [[0, 0, 0]], relaxation=3.0)
+    with pytest.raises(ta.ParameterError, match="neighbor_search"):
+        spheres([[0, 0, 0]], [[0, 0, 0]], neighbor_search="octree")
+    with pytest.raises(ta.ParameterError, match="restitution"):
+        spheres([[0, 0, 0]], [[0, 0, 0]], restitution=1.5)
