@@ -5,6 +5,7 @@ Taichi is never initialised on import: call `taichi_anim.init(arch=...)`, or let
 start it on the CPU.
 """
 
+from .blobs import BlobField, BlobMesh, IsosurfaceMethod
 from .builder import Builder
 from .collision import CollisionMode
 from .errors import DivergenceError, ParameterError
@@ -29,6 +30,8 @@ __version__ = "0.1.0"
 
 __all__ = [
     "INTEGRATORS",
+    "BlobField",
+    "BlobMesh",
     "Builder",
     "CollisionMode",
     "DivergenceError",
@@ -41,6 +44,7 @@ __all__ = [
     "IntegratorRK4",
     "IntegratorRK45",
     "IntegratorSymplecticEuler",
+    "IsosurfaceMethod",
     "Model",
     "ParameterError",
     "ParticleSnapshot",

@@ -134,12 +134,14 @@ def test_slots_are_sorted_by_cell_then_index():
 
 
 def test_auto_choice_and_errors():
-    from taichi_anim.collision.neighbors import CROSSOVER_N
+    from taichi_anim.collision.neighbors import CROSSOVER_N, CROSSOVER_N_HASHED
 
-    assert make_neighbor_search(CROSSOVER_N - 1, 0.1).method == NeighborMethod.BRUTE
-    big = make_neighbor_search(CROSSOVER_N, 0.1, domain=((0, 0, 0), (1, 1, 1)))
+    box = ((0, 0, 0), (1, 1, 1))
+    assert make_neighbor_search(CROSSOVER_N - 1, 0.1, domain=box).method == NeighborMethod.BRUTE
+    big = make_neighbor_search(CROSSOVER_N, 0.1, domain=box)
     assert big.method == NeighborMethod.GRID and "grid" in big.describe()
-    assert make_neighbor_search(CROSSOVER_N, 0.1).method == NeighborMethod.HASH_GRID
+    assert make_neighbor_search(CROSSOVER_N_HASHED - 1, 0.1).method == NeighborMethod.BRUTE
+    assert make_neighbor_search(CROSSOVER_N_HASHED, 0.1).method == NeighborMethod.HASH_GRID
     with pytest.raises(ParameterError, match="method"):
         make_neighbor_search(10, 0.1, method="octree")
     with pytest.raises(ParameterError, match="radius"):

@@ -23,8 +23,10 @@ from .. import validate
 from ..errors import ParameterError
 from .prefix_sum import PrefixSum
 
-# Below this many particles brute force is faster than building a grid (benchmarks/neighbors.py).
-CROSSOVER_N = 2000
+# Below these many particles brute force (build + one query pass) beats the bounded grid / the hashed
+# grid on this project's 2-core CPU (benchmarks/neighbors.py, results/neighbors.md).
+CROSSOVER_N = 360
+CROSSOVER_N_HASHED = 1500
 # A bounded grid keeps at most this many cells per particle (bigger cells beyond it): the counting
 # sort's scan and clear passes are O(cells).
 MAX_CELLS_PER_PARTICLE = 32
@@ -241,15 +243,15 @@ class NeighborGrid(_NeighborSearch):
 def make_neighbor_search(capacity: int, radius: float, *, domain=None, method: str = "auto"):
     """A neighbour structure for up to `capacity` particles and queries up to `radius` [m].
 
-    method: "brute", "grid" (needs domain=(lo, hi)), "hash_grid", or "auto": brute force below
-    CROSSOVER_N particles, else the bounded grid when a domain is given, else the hashed grid."""
+    method: "brute", "grid" (needs domain=(lo, hi)), "hash_grid", or "auto": the bounded grid when a
+    domain is given, else the hashed grid, or brute force below their measured crossover (CROSSOVER_N,
+    CROSSOVER_N_HASHED particles)."""
     names = [m.value for m in NeighborMethod] + ["auto"]
     validate.choice("method", method, names)
     if method == "auto":
-        if capacity < CROSSOVER_N:
+        method = "grid" if domain is not None else "hash_grid"
+        if capacity < (CROSSOVER_N if domain is not None else CROSSOVER_N_HASHED):
             method = "brute"
-        else:
-            method = "grid" if domain is not None else "hash_grid"
     if method == "brute":
         return NeighborBrute(capacity, radius)
     if method == "grid" and domain is None:

@@ -1,10 +1,10 @@
 """Demo scenes, by name: what `taichi-anim demo NAME` runs."""
 
 from .. import validate
-from . import fountain
+from . import blobs, fountain, spheres
 from .base import Scene
 
-SCENES = {"fountain": fountain}
+SCENES = {"fountain": fountain, "blobs": blobs, "spheres": spheres}
 DEFAULT_SCENE = "fountain"
 
 

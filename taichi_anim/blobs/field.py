@@ -1,0 +1,325 @@
+"""Blobby field on a grid: psi(p) = sum_i exp(-|p - p_i|^2 / sigma^2), Blinn 1982, "A Generalization of
+Algebraic Surface Drawing" (ACM TOG 1(3)), the summed Gaussian density D = sum_i b_i exp(-a_i r_i^2) with
+b_i = 1 and a_i = 1 / sigma^2.
+
+Each particle contributes only to nodes within the cutoff radius r_c = cutoff * sigma. Truncation error:
+every omitted particle lies at distance >= r_c from the node, so it would have added less than
+exp(-cutoff^2); hence 0 <= psi_exact(p) - psi(p) < N_omitted(p) * exp(-cutoff^2) <= N exp(-cutoff^2).
+The default cutoff 3 gives exp(-9) = 1.2e-4 per omitted particle, 1/800 of iso = 0.1 and 1/4000 of
+iso = 0.5. Cutoff 2 would allow 1.8e-2 per omitted particle (six of them add up to iso = 0.1); cutoff 4
+costs (4/3)^3 = 2.4x the pair evaluations for an error (1e-7) far below what a grid resolves.
+
+Only nodes near particles are visited: each particle flags the blocks of BLOCK^3 nodes its cutoff box
+touches (integer writes), the flagged blocks are listed in block order, and only their nodes are
+evaluated; every other node is psi = 0 exactly, which is what the truncated sum gives there. The flagged
+box reaches one node further down on each axis than the cutoff box, so every grid edge and every grid
+cell with a nonzero corner has its lower corner in a flagged block (what the isosurface extractors rely
+on). The outermost layer of nodes is held at psi = 0, so the isosurface is closed even where blobs leave
+the grid (they are cut and capped there): give bounds a margin of one blob radius to avoid that.
+
+Gather by block: each flagged block queries the neighbour structure once, around its centre, and adds
+the blobs of the particles found to its own nodes (only its thread writes them: no float atomics, and the
+sum order is the structure's fixed order, so the result is reproducible). The Gaussian factorises over
+the axes, so 3 x BLOCK exponentials per particle and block serve its BLOCK^3 nodes. benchmarks/blobs.py
+measured it 3x faster than a gather per node (each node querying its particles, one exponential per
+pair): 8.9 against 27 ms at 128^3, 34 against 102 ms at 256^3 for a 1000-particle jet.
+"""
+
+import numpy as np
+import taichi as ti
+
+from .. import validate
+from ..collision.neighbors import make_neighbor_search
+from ..errors import ParameterError
+from ..runtime import np_float
+
+BLOCK = 8  # nodes per block edge: 512 nodes, a unit of work big enough to hide the loop overhead
+BLOCK3 = BLOCK**3
+DEFAULT_CUTOFF = 3.0  # in units of sigma; see the module docstring
+
+
+@ti.data_oriented
+class BlobField:
+    """psi on a grid of nodes lo + spacing * (i, j, k) spanning `bounds`.
+
+    capacity: most particles per evaluation; sigma [m]: blob width (one blob alone has
+    psi = exp(-r^2 / sigma^2)); bounds: (lo, hi) [m] of the grid; resolution: nodes along the longest
+    side of bounds (the others get the same spacing); cutoff: r_c / sigma (default 3: truncation error
+    below exp(-9) = 1.2e-4 per particle); neighbor_method: see `make_neighbor_search` (default "grid":
+    every visited block and every mesh vertex is a query, many more than particles, so the grid pays
+    for its build at any particle count, unlike particle-particle searches).
+    Fields: psi (nx, ny, nz) values at the nodes.
+    """
+
+    def __init__(
+        self,
+        *,
+        capacity: int,
+        sigma: float,
+        bounds,
+        resolution: int = 128,
+        cutoff: float = DEFAULT_CUTOFF,
+        neighbor_method: str = "grid",
+    ):
+        self.capacity = validate.count("capacity", capacity, 1)
+        self.sigma = validate.positive("sigma", sigma)
+        self.cutoff = validate.positive("cutoff", cutoff)
+        resolution = validate.count("resolution", resolution, 3)
+        lo = np.asarray(validate.vec3("bounds lo", bounds[0]))
+        hi = np.asarray(validate.vec3("bounds hi", bounds[1]))
+        if np.any(hi <= lo):
+            raise ParameterError(
+                f"bounds must have lo < hi on every axis, got lo={lo.tolist()}, hi={hi.tolist()}"
+            )
+        self.spacing = float((hi - lo).max() / (resolution - 1))
+        # At least 3 nodes per axis: the two outer layers are the zero pad, so a flat box still has an inside.
+        self.dims = tuple(
+            int(max(3, np.ceil((b - a) / self.spacing - 1e-9) + 1)) for a, b in zip(lo, hi, strict=True)
+        )
+        self.lo = tuple(float(c) for c in lo)
+        self.hi = tuple(float(a + self.spacing * (n - 1)) for a, n in zip(lo, self.dims, strict=True))
+        self.cutoff_radius = self.cutoff * self.sigma
+        self.truncation_bound_per_particle = float(np.exp(-(self.cutoff**2)))
+        self.block_dims = tuple((n + BLOCK - 1) // BLOCK for n in self.dims)
+        self.block_count = int(np.prod(self.block_dims))
+
+        self.psi = ti.field(float, self.dims)
+        self.block_flag = ti.field(ti.i32, self.block_count)
+        self.block_slot = ti.field(ti.i32, self.block_count)  # block -> position in active_block, or -1
+        self.active_block = ti.field(ti.i32, self.block_count)  # flagged blocks in block order
+        self.active_count = ti.field(ti.i32, ())
+        self.active_box = ti.Vector.field(3, ti.i32, 2)  # lowest and highest flagged block coordinates
+        self.block_slot.fill(-1)
+        # A block's query around its centre reaches every particle within r_c of any of its nodes.
+        self.block_radius = self.cutoff_radius + 0.5 * (BLOCK - 1) * self.spacing * float(np.sqrt(3.0))
+        r = self.block_radius
+        self.neighbors = make_neighbor_search(
+            self.capacity, r, domain=(tuple(lo - r), tuple(np.asarray(self.hi) + r)), method=neighbor_method
+        )
+        self._x = None  # staging field for NumPy input, allocated on first use
+        self._inv_s2 = 1.0 / self.sigma**2
+        v3i = ti.types.vector(3, ti.i32)
+        self._Block = ti.types.struct(base=v3i, lo=v3i, hi=v3i)
+        self._Grad = ti.types.struct(p=ti.types.vector(3, float), g=ti.types.vector(3, float))
+
+    def describe(self) -> str:
+        d = "x".join(map(str, self.dims))
+        return (
+            f"blob field on {d} nodes, spacing {self.spacing:.4g} m, sigma {self.sigma:.4g} m, cutoff "
+            f"{self.cutoff:g} sigma (truncation < {self.truncation_bound_per_particle:.2g} per particle), "
+            f"neighbours: {self.neighbors.describe()}"
+        )
+
+    def settings(self) -> dict:
+        return {
+            "sigma": self.sigma,
+            "cutoff": self.cutoff,
+            "spacing": self.spacing,
+            "dims": self.dims,
+            "lo": self.lo,
+            "hi": self.hi,
+            "block": BLOCK,
+            "neighbors": self.neighbors.settings(),
+        }
+
+    # ----------------------------------------------------------------------------------------- evaluation
+
+    def evaluate(self, x, count: int | None = None, death=None, t: float = 0.0) -> None:
+        """psi at every node from particles [0, count) of x: a Vector field (N,3) [m] (with an optional
+        `death` field [s]: only particles with death > t count) or a NumPy array (N,3) [m]."""
+        if isinstance(x, np.ndarray) or isinstance(x, (list, tuple)):
+            pts = validate.finite_array("x", np.atleast_2d(np.asarray(x, dtype=np.float64)), (3,))
+            if len(pts) > self.capacity:
+                raise ParameterError(f"x must hold at most capacity={self.capacity} points, got {len(pts)}")
+            if self._x is None:
+                self._x = ti.Vector.field(3, float, self.capacity)
+            buf = np.zeros((self.capacity, 3), dtype=np_float())
+            buf[: len(pts)] = pts
+            self._x.from_numpy(buf)
+            x, count, death = self._x, len(pts), None
+        self.neighbors.build(x, count, death, t)
+        self._evaluate()
+
+    @ti.func
+    def node_position(self, i, j, k):
+        return ti.Vector(self.lo, dt=float) + self.spacing * ti.Vector([i, j, k], dt=float)
+
+    @ti.func
+    def block_coords(self, b):
+        bz = b % self.block_dims[2]
+        by = (b // self.block_dims[2]) % self.block_dims[1]
+        return ti.Vector([b // (self.block_dims[2] * self.block_dims[1]), by, bz])
+
+    @ti.func
+    def block_node(self, b, local):
+        """Grid coordinates of node `local` (0 ... BLOCK^3 - 1, z fastest) of block b."""
+        q = ti.Vector([local // (BLOCK * BLOCK), (local // BLOCK) % BLOCK, local % BLOCK])
+        return self.block_coords(b) * BLOCK + q
+
+    @ti.func
+    def block_of(self, node):
+        c = node // BLOCK
+        return (c[0] * self.block_dims[1] + c[1]) * self.block_dims[2] + c[2]
+
+    @ti.func
+    def inside_grid(self, node):
+        return (node >= 0).all() and (node < ti.Vector(self.dims)).all()
+
+    @ti.func
+    def _splat(self, b, k, ret: ti.template()):
+        """Add particle k's blob to the nodes [ret.lo, ret.hi) of block b (first node ret.base) that lie
+        within the cutoff radius: exp(-|d|^2/s^2) = exp(-dx^2/s^2) exp(-dy^2/s^2) exp(-dz^2/s^2)."""
+        d = self.neighbors.sorted_x[k] - self.node_position(ret.base[0], ret.base[1], ret.base[2])
+        q = ti.Matrix.zero(float, 3, BLOCK)  # squared distance along each axis, node by node
+        e = ti.Matrix.zero(float, 3, BLOCK)
+        for c, a in ti.static(ti.ndrange(3, BLOCK)):
+            t = a * self.spacing - d[c]
+            q[c, a] = t * t
+            e[c, a] = ti.exp(-t * t * self._inv_s2)
+        rc2 = self.cutoff_radius * self.cutoff_radius
+        for i in range(ret.lo[0], ret.hi[0]):
+            for j in range(ret.lo[1], ret.hi[1]):
+                qij = q[0, i] + q[1, j]
+                if qij < rc2:
+                    eij = e[0, i] * e[1, j]
+                    for m in range(ret.lo[2], ret.hi[2]):
+                        if qij + q[2, m] < rc2:
+                            node = ret.base + ti.Vector([i, j, m])
+                            # A plain add, not `+=` (which Taichi makes atomic): only this block's thread
+                            # writes these nodes.
+                            self.psi[node] = self.psi[node] + eij * e[2, m]
+
+    @ti.kernel
+    def _evaluate(self):
+        self._activate_blocks()
+        self._gather_blocks()
+
+    @ti.func
+    def _activate_blocks(self):
+        """Clear the previous evaluation's blocks, flag and list this one's (call at a kernel's top level:
+        its loops run as passes of that launch)."""
+        dims = ti.Vector(self.dims)
+        # Clear what the previous evaluation wrote (its blocks only, not the whole grid).
+        for j in range(self.active_count[None] * BLOCK3):
+            node = self.block_node(self.active_block[j // BLOCK3], j % BLOCK3)
+            if self.inside_grid(node):
+                self.psi[node] = 0.0
+        for s in range(self.active_count[None]):
+            b = self.active_block[s]
+            self.block_flag[b] = 0
+            self.block_slot[b] = -1
+        # Flag the blocks each particle's cutoff box touches (all write the same 1: order does not matter).
+        lo = ti.Vector(self.lo, dt=float)
+        for k in range(self.neighbors.size[None]):
+            p = self.neighbors.sorted_x[k]
+            # Clamp before the cast: a particle far outside the grid must not overflow i32.
+            top = ti.cast(dims, float)
+            a0 = ti.ceil((p - self.cutoff_radius - lo) / self.spacing) - 1.0
+            c0 = ti.floor((p + self.cutoff_radius - lo) / self.spacing)
+            a = ti.cast(ti.min(ti.max(a0, 0.0), top), ti.i32)
+            c = ti.cast(ti.min(ti.max(c0, -1.0), top - 1.0), ti.i32)
+            if (a <= c).all():
+                a //= BLOCK
+                c //= BLOCK
+                for bx, by, bz in ti.ndrange((a[0], c[0] + 1), (a[1], c[1] + 1), (a[2], c[2] + 1)):
+                    self.block_flag[(bx * self.block_dims[1] + by) * self.block_dims[2] + bz] = 1
+        # List flagged blocks in block order (serial: the list, and so every output order, is reproducible).
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            n = 0
+            box_lo = ti.Vector(self.block_dims)
+            box_hi = ti.Vector([-1, -1, -1])
+            for b in range(self.block_count):
+                if self.block_flag[b]:
+                    self.active_block[n] = b
+                    self.block_slot[b] = n
+                    bc = self.block_coords(b)
+                    box_lo = ti.min(box_lo, bc)
+                    box_hi = ti.max(box_hi, bc)
+                    n += 1
+            self.active_count[None] = n
+            self.active_box[0] = box_lo
+            self.active_box[1] = box_hi
+
+    @ti.func
+    def _gather_blocks(self):
+        dims = ti.Vector(self.dims)
+        half = 0.5 * (BLOCK - 1) * self.spacing
+        for s in range(self.active_count[None]):
+            b = self.active_block[s]
+            base = self.block_coords(b) * BLOCK
+            # Interior nodes only: the outer layer stays 0, the zero pad that closes the isosurface.
+            acc = self._Block(base=base, lo=ti.max(1 - base, 0), hi=ti.min(dims - 1 - base, BLOCK))
+            centre = self.node_position(base[0], base[1], base[2]) + half
+            self.neighbors.for_each_neighbor(b, centre, self.block_radius, self._splat, acc)
+
+    def isosurface(self, iso: float = 0.5, *, method=None):
+        """The closed surface psi = iso of the last evaluation as a BlobMesh (vertices [m], triangles,
+        outward normals). One blob alone gives a sphere of radius sigma * sqrt(ln(1 / iso)).
+        method: "open3d" (default), "skimage" or "taichi" (see isosurface.py)."""
+        from .isosurface import DEFAULT_METHOD, extract
+
+        return extract(self, iso, DEFAULT_METHOD if method is None else method)
+
+    # --------------------------------------------------------------------------------------- read back
+
+    @ti.func
+    def _add_gradient(self, i, k, ret: ti.template()):
+        d = ret.p - self.neighbors.sorted_x[k]
+        ret.g += d * ti.exp(-d.norm_sqr() * self._inv_s2)
+
+    @ti.kernel
+    def _outward_normals(self, points: ti.types.ndarray(), out: ti.types.ndarray()):
+        for v in range(points.shape[0]):
+            p = ti.Vector([points[v, 0], points[v, 1], points[v, 2]], dt=float)
+            acc = self._Grad(p=p, g=ti.Vector.zero(float, 3))
+            self.neighbors.for_each_neighbor(v, p, self.cutoff_radius, self._add_gradient, acc)
+            # -grad psi = (2 / sigma^2) sum (p - p_i) exp(...): the positive factor drops out on normalising.
+            length = acc.g.norm()
+            n = ti.Vector.zero(float, 3)
+            if length > 1e-300:  # zero only at a critical point of psi; avoid 0/0 = NaN
+                n = acc.g / length
+            for c in ti.static(range(3)):
+                out[v, c] = n[c]
+
+    def outward_normals(self, points) -> np.ndarray:
+        """(M,3) unit vectors -grad psi / |grad psi| at `points` (M,3) [m], from the analytic gradient
+        grad psi = sum_i -2 (p - p_i) / sigma^2 exp(-|p - p_i|^2 / sigma^2) of the last evaluation
+        (zero where the gradient vanishes)."""
+        pts = np.ascontiguousarray(validate.finite_array("points", points, (3,)))
+        out = np.zeros_like(pts)
+        if len(pts):
+            self._outward_normals(pts, out)
+        return out
+
+    @ti.kernel
+    def _copy_box(self, out: ti.types.ndarray(), o0: ti.i32, o1: ti.i32, o2: ti.i32):
+        for i, j, k in ti.ndrange(out.shape[0], out.shape[1], out.shape[2]):
+            out[i, j, k] = self.psi[o0 + i, o1 + j, o2 + k]
+
+    def active_volume(self) -> tuple[np.ndarray, np.ndarray]:
+        """(origin (3,) int node index, psi (a, b, c) copy) of the smallest box of nodes holding every
+        nonzero node plus one zero node on each side (or the grid's zero outer layer): what a library
+        isosurface extractor needs to see. An empty box (0, 0, 0) when no particle touched the grid."""
+        if int(self.active_count[None]) == 0:
+            return np.zeros(3, dtype=np.int64), np.zeros((0, 0, 0), dtype=np_float())
+        box = self.active_box.to_numpy()
+        lo = np.maximum(box[0] * BLOCK - 1, 0)
+        hi = np.minimum((box[1] + 1) * BLOCK, np.asarray(self.dims) - 1)  # inclusive
+        out = np.empty(tuple(int(n) for n in hi - lo + 1), dtype=np_float())
+        self._copy_box(out, int(lo[0]), int(lo[1]), int(lo[2]))
+        return lo.astype(np.int64), out
+
+    def values(self) -> np.ndarray:
+        """psi at every node, (nx, ny, nz)."""
+        return self.psi.to_numpy()
+
+    def node_positions(self) -> np.ndarray:
+        """(nx, ny, nz, 3) node positions [m]."""
+        axes = [self.lo[a] + self.spacing * np.arange(self.dims[a]) for a in range(3)]
+        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
+
+    @property
+    def active_block_count(self) -> int:
+        """Blocks of BLOCK^3 nodes evaluated by the last `evaluate` (the rest of the grid is 0)."""
+        return int(self.active_count[None])
