@@ -21,6 +21,7 @@ import taichi as ti
 
 from .. import validate
 from ..errors import ParameterError
+from ..runtime import serial_loops
 from .prefix_sum import PrefixSum
 
 # Below these many particles brute force (build + one query pass) beats the bounded grid / the hashed
@@ -148,7 +149,11 @@ class NeighborGrid(_NeighborSearch):
         self.cell_start = ti.field(ti.i32, c + 1)
         self.particle_cell = ti.field(ti.i32, self.capacity)
         self.particle_rank = ti.field(ti.i32, self.capacity)
-        self._scan = PrefixSum(c)
+        # Hashed grid: each slot's cell, so a query skips other cells sharing a bucket with one compare.
+        self.slot_cell = ti.Vector.field(3, ti.i32, self.capacity) if self.hashed else None
+        # Small structures are launch-bound on the CPU: their build loops run on one thread.
+        self._serial = serial_loops(self.capacity)
+        self._scan = PrefixSum(c, self._serial)
 
     def describe(self) -> str:
         if self.hashed:
@@ -185,8 +190,10 @@ class NeighborGrid(_NeighborSearch):
 
     @ti.kernel
     def _build(self, x: ti.template(), n: ti.i32, death: ti.template(), t: float, use_death: ti.template()):
+        ti.loop_config(serialize=self._serial)
         for c in range(self.cell_count):
             self.cell_particles[c] = 0
+        ti.loop_config(serialize=self._serial)
         for i in range(n):
             ok = True
             if ti.static(use_death):
@@ -197,12 +204,14 @@ class NeighborGrid(_NeighborSearch):
                 self.particle_rank[i] = ti.atomic_add(self.cell_particles[cell], 1)
             self.particle_cell[i] = cell
         self._scan.exclusive(self.cell_particles, self.cell_start, self.cell_count)
+        ti.loop_config(serialize=self._serial)
         for i in range(n):
             cell = self.particle_cell[i]
             if cell >= 0:
                 self.sorted_id[self.cell_start[cell] + self.particle_rank[i]] = i
         # The atomic ranks depend on thread timing: sort each cell by particle index so every query
         # visits neighbours in one order and float sums over them are reproducible.
+        ti.loop_config(serialize=self._serial)
         for c in range(self.cell_count):
             a = self.cell_start[c]
             for k in range(a + 1, self.cell_start[c + 1]):
@@ -213,8 +222,12 @@ class NeighborGrid(_NeighborSearch):
                     m -= 1
                 self.sorted_id[m] = v
         self.size[None] = self.cell_start[self.cell_count]
+        ti.loop_config(serialize=self._serial)
         for k in range(self.cell_start[self.cell_count]):
-            self.sorted_x[k] = x[self.sorted_id[k]]
+            p = x[self.sorted_id[k]]
+            self.sorted_x[k] = p
+            if ti.static(self.hashed):
+                self.slot_cell[k] = self.coords(p)
 
     @ti.func
     def _cells(self, i, p, r2, check: ti.template(), visit: ti.template(), ret: ti.template()):
@@ -225,7 +238,7 @@ class NeighborGrid(_NeighborSearch):
                 key = self.key(c)
                 for k in range(self.cell_start[key], self.cell_start[key + 1]):
                     # Other cells hashed to this bucket: skip (they are visited through their own).
-                    if (self.coords(self.sorted_x[k]) == c).all():
+                    if (self.slot_cell[k] == c).all():
                         self._offer(i, k, p, r2, check, visit, ret)
         else:
             # Cells adjacent in z are adjacent in memory: one contiguous slot range per (x, y) column.

@@ -14,10 +14,12 @@ BLOCK = 1024
 
 @ti.data_oriented
 class PrefixSum:
-    """Scratch for scanning up to `capacity` integers."""
+    """Scratch for scanning up to `capacity` integers; serial=True runs every pass on one thread (for
+    small, launch-bound scans on the CPU)."""
 
-    def __init__(self, capacity: int):
+    def __init__(self, capacity: int, serial: bool = False):
         self.capacity = capacity
+        self.serial = serial
         self.block_count = (capacity + BLOCK - 1) // BLOCK
         self.block_total = ti.field(ti.i32, self.block_count + 1)
 
@@ -25,6 +27,7 @@ class PrefixSum:
     def exclusive(self, counts: ti.template(), starts: ti.template(), n):
         """starts[c] = sum(counts[:c]) for c in [0, n]; n <= capacity. Call at the top level of a kernel."""
         blocks = (n + BLOCK - 1) // BLOCK
+        ti.loop_config(serialize=self.serial)
         for b in range(blocks):
             acc = 0
             for c in range(b * BLOCK, ti.min(n, (b + 1) * BLOCK)):
@@ -39,5 +42,6 @@ class PrefixSum:
                 self.block_total[b] = acc
                 acc += t
             starts[n] = acc
+        ti.loop_config(serialize=self.serial)
         for c in range(n):
             starts[c] += self.block_total[c // BLOCK]

@@ -77,37 +77,37 @@ class _PositionSide:
 
     @ti.func
     def visit(self, i, k, ret: ti.template()):
-        if k != i:
-            o = self.owner
-            xj = self.x[k]
-            rj = o.slot_radius(k)
-            reach = ret.r + rj
-            d2 = (ret.x - xj).norm_sqr()
-            if 1e-24 < d2 < reach * reach:  # coincident centres have no normal: left to the next step
-                ret.dx += pair_projection(ret.x, ret.r, ret.w, xj, rj, o.slot_inv_mass(k))
-                ret.n += 1
+        # No `k != i` test: a sphere is at distance 0 from itself, which the lower bound excludes (as it
+        # excludes coincident centres, which have no normal and are left to the next step).
+        o = self.owner
+        xj = self.x[k]
+        rj = o.slot_radius(k)
+        reach = ret.r + rj
+        d2 = (ret.x - xj).norm_sqr()
+        if 1e-24 < d2 < reach * reach:
+            ret.dx += pair_projection(ret.x, ret.r, ret.w, xj, rj, o.slot_inv_mass(k))
+            ret.n += 1
 
     @ti.func
     def visit_velocity(self, i, k, ret: ti.template()):
         """Restitution and friction for a pair that overlapped in the prediction and was approaching."""
-        if k != i:
-            o = self.owner
-            reach = ret.r + o.slot_radius(k)
-            d = ret.xp - o.x_pred[k]
-            d2 = d.norm_sqr()
-            if 1e-24 < d2 < reach * reach:
-                n = d / ti.sqrt(d2)
-                vn_before = (ret.vp - o.v_pred[k]).dot(n)
-                if vn_before < 0.0:
-                    # The normal of the solved positions: the one the projection separated along.
-                    ds = ret.x - self.x[k]
-                    ns = ds / ti.max(ds.norm(), 1e-30)
-                    vj = o.v_pred[k] + (self.x[k] - o.x_pred[k]) * ret.inv_h
-                    ret.dv += pair_velocity(
-                        ns, ret.v, ret.w, vj, o.slot_inv_mass(k), vn_before,
-                        o.restitution, o.friction, o.rest_speed,
-                    )  # fmt: skip
-                    ret.n += 1
+        o = self.owner
+        reach = ret.r + o.slot_radius(k)
+        d = ret.xp - o.x_pred[k]
+        d2 = d.norm_sqr()
+        if 1e-24 < d2 < reach * reach:
+            n = d / ti.sqrt(d2)
+            vn_before = (ret.vp - o.v_pred[k]).dot(n)
+            if vn_before < 0.0:
+                # The normal of the solved positions: the one the projection separated along.
+                ds = ret.x - self.x[k]
+                ns = ds / ti.max(ds.norm(), 1e-30)
+                vj = o.v_pred[k] + (self.x[k] - o.x_pred[k]) * ret.inv_h
+                ret.dv += pair_velocity(
+                    ns, ret.v, ret.w, vj, o.slot_inv_mass(k), vn_before,
+                    o.restitution, o.friction, o.rest_speed,
+                )  # fmt: skip
+                ret.n += 1
 
 
 @ti.data_oriented
