@@ -118,12 +118,18 @@ def test_continuous_contacts_stop_a_fast_sphere_at_a_thin_wall():
     b = ta.Builder()
     b.add_particle((0, 0, 0), (50.0, 0, 0), radius=0.01)
     b.add_collider_box((0.3, -1, -1), (0.302, 1, 1), solid=True, restitution=1.0)
-    b.add_sphere_contacts(continuous=True)
+    b.add_sphere_contacts(continuous=True, max_substeps=512)
     model = b.finalize()
     state = model.state()
     x, v = run(model, state, 1 / 60, 1)
     assert x[0, 0] <= 0.3 - 0.01 + 1e-9
     assert v[0, 0] == pytest.approx(-50.0)
+
+
+def test_too_few_substeps_is_a_warning_naming_the_limit():
+    model, state = spheres([[0, 0, 0]], [[50.0, 0, 0]], radius=0.01, continuous=True, max_substeps=8)
+    with pytest.warns(RuntimeWarning, match="capped at max_substeps=8"):
+        run(model, state, 1 / 60, 1)
 
 
 def pile(n_side, layers, r, seed=0):

@@ -26,8 +26,8 @@ from .prefix_sum import PrefixSum
 
 # Below these many particles brute force (build + one query pass) beats the bounded grid / the hashed
 # grid on this project's 2-core CPU (benchmarks/neighbors.py, results/neighbors.md).
-CROSSOVER_N = 360
-CROSSOVER_N_HASHED = 1500
+CROSSOVER_N = 120
+CROSSOVER_N_HASHED = 1100
 # A bounded grid keeps at most this many cells per particle (bigger cells beyond it): the counting
 # sort's scan and clear passes are O(cells).
 MAX_CELLS_PER_PARTICLE = 32

@@ -286,7 +286,8 @@ class ContactSpheres:
 
     def overlap_stats(self, state) -> tuple[float, int]:
         """(largest overlap r_i + r_j - |x_i - x_j| [m] over all touching pairs, number of such pairs)
-        in the current state: the measure of how well the last solve separated the spheres."""
+        in the current state: the measure of how well the last solve separated the spheres. It rebuilds
+        the neighbour structure (the solver's scratch), so call it between steps."""
         death = state.particle_death if state.has_lifetimes else None
         self.neighbors.build(state.particle_x, death=death, t=state.time)
         self._overlaps(state)
