@@ -29,6 +29,8 @@ from .. import validate
 from .neighbors import make_neighbor_search
 from .response import project_spheres
 
+CONTACTS_KEPT = 16  # listed contacts per sphere: equal spheres touch at most 12 without deep overlap
+
 
 def accumulator_types():
     """Per-sphere accumulators of the sweeps. Made after ti.init: a type made before it resolves
@@ -69,11 +71,13 @@ def pair_velocity(n, vi, wi, vj, wj, vn_before, e, mu, rest_speed):
 
 @ti.data_oriented
 class _PositionSide:
-    """One side of the position ping-pong: sphere centres in slot order."""
+    """One side of the position ping-pong: sphere centres in slot order. The prediction's side records
+    each sphere's contacts (the velocity sweep revisits exactly these)."""
 
-    def __init__(self, owner, x):
+    def __init__(self, owner, x, record: bool = False):
         self.owner = owner
         self.x = x
+        self.record = record
 
     @ti.func
     def visit(self, i, k, ret: ti.template()):
@@ -86,6 +90,9 @@ class _PositionSide:
         d2 = (ret.x - xj).norm_sqr()
         if 1e-24 < d2 < reach * reach:
             ret.dx += pair_projection(ret.x, ret.r, ret.w, xj, rj, o.slot_inv_mass(k))
+            if ti.static(self.record):
+                if ret.n < CONTACTS_KEPT:
+                    o.slot_contacts[i, ret.n] = k
             ret.n += 1
 
     @ti.func
@@ -153,7 +160,12 @@ class ContactSpheres:
         # two sides of the position ping-pong.
         self.x_pred = self.neighbors.sorted_x
         self.v_pred = ti.Vector.field(3, float, n)
-        self.pred = _PositionSide(self, self.x_pred)
+        self.pred = _PositionSide(self, self.x_pred, record=True)
+        # The first sweep lists each sphere's contacts in the prediction, in visiting order; the velocity
+        # sweep, whose contacts are exactly these, walks the list instead of the 27 cells (the same pairs
+        # in the same order, so the same sums). A sphere with more falls back to the cells.
+        self.slot_contacts = ti.field(ti.i32, (n, CONTACTS_KEPT))
+        self.slot_contact_count = ti.field(ti.i32, n)
         self.sides = [_PositionSide(self, ti.Vector.field(3, float, n)) for _ in range(2)]
         self._per_slot = model._per_particle_radius or model._per_particle_mass
         self.slot_r = ti.field(float, n) if self._per_slot else None
@@ -240,6 +252,8 @@ class ContactSpheres:
                 n=0,
             )
             self.neighbors.for_each_candidate(k, acc.x, src.visit, acc)
+            if ti.static(first):
+                self.slot_contact_count[k] = acc.n
             x = acc.x
             if acc.n > 0:
                 x += acc.dx * ti.min(1.0, self.relaxation / acc.n)
@@ -263,7 +277,12 @@ class ContactSpheres:
                 dv=ti.Vector.zero(float, 3),
                 n=0,
             )
-            ns.for_each_candidate(k, acc.xp, side.visit_velocity, acc)
+            listed = self.slot_contact_count[k]
+            if listed <= CONTACTS_KEPT:
+                for c in range(listed):
+                    side.visit_velocity(k, self.slot_contacts[k, c], acc)
+            else:
+                ns.for_each_candidate(k, acc.xp, side.visit_velocity, acc)
             v = acc.v
             if acc.n > 0:
                 v += acc.dv / acc.n
