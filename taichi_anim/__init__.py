@@ -8,6 +8,7 @@ start it on the CPU.
 from .blobs import BlobField, BlobMesh, IsosurfaceMethod
 from .builder import Builder
 from .collision import CollisionMode
+from .collision.neighbors import NeighborMethod, make_neighbor_search
 from .errors import DivergenceError, ParameterError
 from .integrators import (
     INTEGRATORS,
@@ -46,6 +47,7 @@ __all__ = [
     "IntegratorSymplecticEuler",
     "IsosurfaceMethod",
     "Model",
+    "NeighborMethod",
     "ParameterError",
     "ParticleSnapshot",
     "State",
@@ -53,4 +55,5 @@ __all__ = [
     "init",
     "is_initialized",
     "make_integrator",
+    "make_neighbor_search",
 ]

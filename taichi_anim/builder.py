@@ -51,7 +51,12 @@ class Builder:
         m = np.broadcast_to(np.asarray(mass, dtype=np.float64), (len(x),)).copy()
         if not np.all(np.isfinite(m)) or np.any(m < 0):
             raise ParameterError(f"mass must be finite and >= 0 (0 pins a particle), got {mass!r}")
-        r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(x),)).copy()
+        r = np.asarray(radius, dtype=np.float64)
+        if r.ndim > 1 or (r.ndim == 1 and len(r) != len(x)):
+            raise ParameterError(
+                f"radius must be a scalar or one value per particle ({len(x)}), got shape {r.shape}"
+            )
+        r = np.broadcast_to(r, (len(x),)).copy()
         if not np.all(np.isfinite(r)) or np.any(r < 0):
             raise ParameterError(f"radius must be finite and >= 0, got {radius!r}")
         start = self.particle_count
@@ -260,7 +265,12 @@ class Builder:
                     "add_sphere_contacts needs particles with radius > 0 (add_particles(radius=...) or "
                     "add_particle_emitter(particle_radius=...)); every radius is 0"
                 )
-            contacts = dict(self._contacts, domain=self._contact_domain())
+            domain = self._contact_domain()
+            if self._contacts["neighbor_search"] == "grid" and domain is None:
+                raise ParameterError(
+                    "neighbor_search='grid' needs a container (add_collider_box); use 'hash_grid' or 'auto'"
+                )
+            contacts = dict(self._contacts, domain=domain)
         terms: list = []
         if self._gravity is not None:
             terms.append(Gravity(self._gravity))

@@ -46,6 +46,7 @@ class Model:
         # Radii [m]: all zero for point particles (a compile-time 0 then), one value, or one per particle.
         self.max_radius = float(radii.max())
         self.min_radius = float(radii.min())
+        self.min_sphere_radius = float(radii[radii > 0].min()) if self.max_radius > 0 else 0.0
         self.uniform_radius = self.max_radius if self.max_radius == self.min_radius else None
         self.particle_radius = None
         self._per_particle_radius = self.uniform_radius is None  # compile-time branch in kernels

@@ -33,7 +33,8 @@ def test_gpu_backend_matches_cpu(arch):
     assert close.mean() > 0.99, close.mean()
 
 
-def sphere_pile(arch: str, method: str, frames: int = 6):
+def sphere_pile(arch: str, method: str):
+    """Positions while the column falls (6 frames) and (largest overlap, contacts) once it has landed."""
     ta.init(arch, precision="f32")
     scene = make_scene("spheres", particles=4000, seed=1)
     b = ta.Builder()  # the same spheres with the neighbour structure under test
@@ -46,9 +47,12 @@ def sphere_pile(arch: str, method: str, frames: int = 6):
     model = b.finalize()
     state = model.state()
     integ = ta.make_integrator("symplectic_euler")
-    for _ in range(frames * scene.substeps):
+    for _ in range(6 * scene.substeps):
         integ.step(model, state, scene.dt)
-    return state.particle_x.to_numpy(), model.contacts.overlap_stats(state)
+    falling = state.particle_x.to_numpy()
+    for _ in range(6 * scene.substeps):
+        integ.step(model, state, scene.dt)
+    return falling, model.contacts.overlap_stats(state)
 
 
 @pytest.mark.gpu
@@ -56,7 +60,8 @@ def sphere_pile(arch: str, method: str, frames: int = 6):
 @pytest.mark.parametrize("method", ["grid", "hash_grid"])
 def test_gpu_sphere_contacts_match_cpu(arch, method):
     """The counting sort (block scan, per-cell sort) and the contact sweeps run on the GPU backends: the
-    column falls the same way (before the splash makes the motion chaotic) and overlaps stay small."""
+    column falls the same way, and once it has landed (the splash makes the motion chaotic) it has as
+    many contacts and small overlaps."""
     try:
         ta.init(arch)
     except RuntimeError as e:
@@ -65,4 +70,5 @@ def test_gpu_sphere_contacts_match_cpu(arch, method):
     x_cpu, (overlap_cpu, contacts_cpu) = sphere_pile("cpu", method)
     close = np.linalg.norm(x_gpu - x_cpu, axis=1) < 1e-3
     assert close.mean() > 0.95, close.mean()
-    assert overlap_gpu < 0.25 * 0.006 and abs(contacts_gpu - contacts_cpu) < 0.05 * contacts_cpu
+    assert contacts_cpu > 1000  # the column has landed
+    assert overlap_gpu < 0.25 * 0.006 and abs(contacts_gpu - contacts_cpu) < 0.1 * contacts_cpu

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from taichi_anim import ParameterError
-from taichi_anim.collision.neighbors import NeighborMethod, make_neighbor_search
+import taichi_anim as ta
+from taichi_anim import NeighborMethod, ParameterError, make_neighbor_search
 
 MAX_NEIGHBORS = 96
 
@@ -150,3 +150,35 @@ def test_auto_choice_and_errors():
         make_neighbor_search(10, 0.1, method="grid")
     with pytest.raises(ParameterError, match="domain"):
         make_neighbor_search(10, 0.1, domain=((0, 0, 0), (1, -1, 1)), method="grid")
+
+
+def test_parallel_build_finds_the_same_pairs_as_a_kd_tree():
+    """Above CPU_SERIAL_BELOW the build runs in parallel (atomic ranks, per-cell sort, parallel scan
+    passes): the pairs still equal SciPy's k-d tree, and the slot order is the same on 1 and 2 threads."""
+    from scipy.spatial import cKDTree
+
+    from taichi_anim.runtime import CPU_SERIAL_BELOW
+
+    h, radius = 0.05, 0.0468
+    x = cloud(CPU_SERIAL_BELOW + 5000, 11, h)
+    expected = cKDTree(x).query_pairs(radius, output_type="set")
+    expected = {(i, j) for i, j in expected} | {(j, i) for i, j in expected}
+    orders = {}
+    for method in ("grid", "hash_grid"):
+        for threads in (2, 1):
+            ta.init("cpu", precision="f64", cpu_threads=threads)
+            domain = ((-1, -1, -1), (0.6, 0.6, 0.6)) if method == "grid" else None
+            ns = make_neighbor_search(len(x), h, domain=domain, method=method)
+            pairs, _ = query_pairs(ns, x, radius)
+            assert pairs == expected
+            orders[method, threads] = ns.sorted_id.to_numpy()
+        assert np.array_equal(orders[method, 1], orders[method, 2])
+
+
+def test_build_rejects_a_count_beyond_the_positions():
+    ns = make_neighbor_search(100, 0.1, method="grid", domain=((0, 0, 0), (1, 1, 1)))
+    x = ti.Vector.field(3, float, 10)
+    with pytest.raises(ParameterError, match="count must be in"):
+        ns.build(x, count=100)
+    with pytest.raises(ParameterError, match="count must be in"):
+        ns.build(x, count=-5)

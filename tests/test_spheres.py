@@ -212,6 +212,10 @@ def test_bad_sphere_input_is_rejected():
         spheres([[0, 0, 0]], [[0, 0, 0]], neighbor_search="octree")
     with pytest.raises(ta.ParameterError, match="restitution"):
         spheres([[0, 0, 0]], [[0, 0, 0]], restitution=1.5)
+    with pytest.raises(ta.ParameterError, match="radius must be a scalar or one value per particle"):
+        spheres([[0, 0, 0], [1, 0, 0]], [[0, 0, 0], [0, 0, 0]], radius=[0.1, 0.1, 0.1])
+    with pytest.raises(ta.ParameterError, match="neighbor_search='grid' needs a container"):
+        spheres([[0, 0, 0]], [[0, 0, 0]], neighbor_search="grid")
 
 
 def test_velocity_sweep_contact_list_and_its_fallback_agree(monkeypatch):
@@ -236,3 +240,47 @@ def test_velocity_sweep_contact_list_and_its_fallback_agree(monkeypatch):
     assert np.abs(listed[0] - fallback[0]).max() < 1e-11
     assert np.abs(listed[1] - fallback[1]).max() < 1e-9
     assert np.abs(listed[0] - x).max() > 2 * r
+
+
+def test_unequal_spheres_starting_in_contact_conserve_momentum():
+    """Per-particle radii and masses (the solver's per-slot path), 5 cm overlapped at rest: one step
+    separates them to r1 + r2 by inverse-mass shares without creating momentum."""
+    m = np.array([1.0, 3.0])
+    model, state = spheres([[0, 0, 0], [0.25, 0, 0]], [[0, 0, 0], [0, 0, 0]], mass=m, radius=[0.1, 0.2])
+    x, v = run(model, state, 0.01, 1)
+    assert np.abs(m @ v).max() < 1e-12
+    assert x[1, 0] - x[0, 0] == pytest.approx(0.3, abs=1e-12)
+    assert x[0, 0] == pytest.approx(-0.05 * 3 / 4, abs=1e-12)  # the light sphere moves 3/4 of it
+
+
+def test_mixed_spheres_same_result_on_one_and_two_threads():
+    r = 0.01
+    x, v, box = pile(16, 4, r, seed=9)
+    rng = np.random.default_rng(1)
+    radius = r * rng.uniform(0.7, 1.0, len(x))
+    mass = rng.uniform(0.5, 2.0, len(x)) * 1e-3
+
+    def result(threads):
+        ta.init("cpu", precision="f32", cpu_threads=threads)
+        model, state = spheres(x, v, mass=mass, radius=radius, gravity=True, box=box, neighbor_search="grid")
+        return run(model, state, 1 / 1200, 100)[0]
+
+    a = result(2)
+    assert np.array_equal(a, result(1)) and np.array_equal(a, result(2))
+
+
+def test_coincident_spheres_come_apart():
+    model, state = spheres([[0, 0, 0], [0, 0, 0]], [[0, 0, 0], [0, 0, 0]], radius=0.1)
+    x, _ = run(model, state, 0.01, 1)
+    assert np.linalg.norm(x[1] - x[0]) == pytest.approx(0.2, abs=1e-9)  # along x, from a 1e-12 seed gap
+
+
+def test_points_and_spheres_share_a_scene_with_continuous_contacts():
+    b = ta.Builder()
+    b.add_particles([[0, 0, 0], [1, 0, 0]], [[0, 0, 0], [0, 0, 0]], radius=[0.0, 0.1])
+    b.add_sphere_contacts(continuous=True)
+    model = b.finalize()
+    assert model.contacts.min_radius == 0.1
+    state = model.state()
+    run(model, state, 0.01, 2)
+    assert model.contacts.overlap_stats(state) == (0.0, 0)

