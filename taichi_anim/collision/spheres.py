@@ -244,12 +244,14 @@ class ContactSpheres:
 
     @ti.kernel
     def _project(self, state: ti.template(), src: ti.template(), dst: ti.template(), first: ti.template()):
-        if ti.static(first):
+        if ti.static(first and self._per_slot):
             # A pass of its own (top-level loops run one after the other): the sweep below reads the
             # neighbours' radii and masses, which must be this build's, not the last one's.
             for k in range(self.neighbors.size[None]):
                 self._gather(state, k)
         for k in range(self.neighbors.size[None]):
+            if ti.static(first and not self._per_slot):
+                self._gather(state, k)  # only v*, which no sweep of positions reads: fused, one pass less
             acc = self._position_acc(
                 x=src.x[k],
                 r=self.slot_radius(k),
