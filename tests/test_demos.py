@@ -53,7 +53,7 @@ def test_spheres_demo_exports_radii_and_keeps_spheres_in_the_box(tmp_path):
     assert np.all(cloud["points"] >= lo + r - 1e-4) and np.all(cloud["points"] <= hi - r + 1e-4)
     assert cloud["points"][:, 1].min() < 2 * r  # some lie on the floor
     overlap, contacts = scene.model.contacts.overlap_stats(scene.state)
-    assert contacts > 1000 and overlap < 0.25 * r  # mid-impact, one sweep per 1/1200 s step
+    assert contacts > 1000 and overlap < 0.25 * r  # mid-impact, one sweep per 1/2400 s step
 
 
 def test_cli_lists_demos_and_rejects_bad_input(capsys):
