@@ -7,6 +7,7 @@ start it on the CPU.
 
 from .blobs import BlobField, BlobMesh, IsosurfaceMethod
 from .builder import Builder
+from .cloth import Cloth, ClothMaterial
 from .collision import CollisionMode
 from .collision.neighbors import NeighborMethod, make_neighbor_search
 from .errors import DivergenceError, ParameterError
@@ -22,6 +23,13 @@ from .integrators import (
     IntegratorSymplecticEuler,
     make_integrator,
 )
+from .linalg import (
+    LinearSolverCG,
+    LinearSolveResult,
+    LinearSolverJacobi,
+    LinearSolverKind,
+    make_linear_solver,
+)
 from .model import Model
 from .particles import EmitterShape
 from .runtime import backend_name, init, is_initialized
@@ -34,6 +42,8 @@ __all__ = [
     "BlobField",
     "BlobMesh",
     "Builder",
+    "Cloth",
+    "ClothMaterial",
     "CollisionMode",
     "DivergenceError",
     "EmitterShape",
@@ -46,6 +56,10 @@ __all__ = [
     "IntegratorRK45",
     "IntegratorSymplecticEuler",
     "IsosurfaceMethod",
+    "LinearSolveResult",
+    "LinearSolverCG",
+    "LinearSolverJacobi",
+    "LinearSolverKind",
     "Model",
     "NeighborMethod",
     "ParameterError",
@@ -55,5 +69,6 @@ __all__ = [
     "init",
     "is_initialized",
     "make_integrator",
+    "make_linear_solver",
     "make_neighbor_search",
 ]

@@ -7,8 +7,9 @@ import math
 
 import numpy as np
 
-from . import validate
-from .collision import ColliderPlane, ColliderSolidBox
+from . import geometry, validate
+from .cloth import Cloth, ClothMaterial
+from .collision import ColliderPlane, ColliderSolidBox, ColliderSphere
 from .errors import ParameterError
 from .forces import AnchorSpring, Drag, Gravity
 from .model import Model
@@ -34,6 +35,9 @@ class Builder:
         self._anchored: set[int] = set()
         self._colliders: list = []
         self._trail_length = 0
+        self._springs: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self._triangles: list[np.ndarray] = []
+        self.cloths: list[Cloth] = []
 
     @property
     def particle_count(self) -> int:
@@ -69,6 +73,108 @@ class Builder:
     def add_particle(self, x, v=(0.0, 0.0, 0.0), mass: float = 1.0, *, radius: float = 0.0) -> int:
         """Add one particle and return its index."""
         return self.add_particles([x], [v], mass, radius=radius)[0]
+
+    def add_cloth_grid(
+        self,
+        *,
+        origin=(0.0, 0.0, 0.0),
+        size=(1.0, 1.0),
+        resolution=(32, 32),
+        plane: str = "xz",
+        material: ClothMaterial | None = None,
+        thickness: float = 0.005,
+        pinned=(),
+        velocity=(0.0, 0.0, 0.0),
+    ) -> Cloth:
+        """A rectangular cloth: resolution (nx, ny) vertices over size (w, h) [m] from origin [m], in the
+        "xz" plane (horizontal; vertex (i, j) at origin + (i w/(nx-1), 0, j h/(ny-1))) or "xy" (vertical);
+        vertex (i, j) is particle start + j nx + i. Springs in Provot's grid layout; mass from the
+        material's areal density; thickness [m]: collision radius of each vertex; pinned: grid vertex
+        indices j nx + i that keep their velocity (kinematic); velocity [m/s] of every vertex at t = 0."""
+        res = tuple(validate.count("resolution", r, 2) for r in np.atleast_1d(resolution))
+        if len(res) != 2:
+            raise ParameterError(f"resolution must be (nx, ny), got {resolution!r}")
+        sz = np.asarray(size, dtype=np.float64).reshape(-1)
+        if sz.shape != (2,) or not np.all(np.isfinite(sz)) or np.any(sz <= 0):
+            raise ParameterError(f"size must be two finite lengths > 0 [m], got {size!r}")
+        validate.choice("plane", plane, ["xz", "xy"])
+        vertices, triangles = geometry.cloth_grid(
+            origin=validate.vec3("origin", origin), size=tuple(sz), resolution=res, plane=plane
+        )
+        springs = geometry.grid_springs(res)
+        return self._add_cloth(vertices, triangles, springs, material, thickness, pinned, velocity)
+
+    def add_cloth_mesh(
+        self,
+        mesh,
+        *,
+        material: ClothMaterial | None = None,
+        thickness: float = 0.005,
+        pinned=(),
+        velocity=(0.0, 0.0, 0.0),
+    ) -> Cloth:
+        """A cloth from a triangle mesh: an Open3D TriangleMesh (legacy or tensor), a file Open3D reads
+        (PLY keeps vertex order, so pin indices stay valid), or (vertices (V,3) [m], triangles (F,3)).
+        Stretch springs on the edges; across each interior edge a shear spring where the edge is the
+        diagonal of a split quad, else a bend spring. Bad meshes (empty, NaN, duplicate vertices,
+        zero-area triangles, non-manifold edges, unused vertices) raise ParameterError."""
+        vertices, triangles = geometry.load_mesh(mesh)
+        used = np.zeros(len(vertices), dtype=bool)
+        used[triangles.reshape(-1)] = True
+        if not used.all():
+            raise ParameterError(
+                f"mesh: vertex {int(np.argmin(used))} is in no triangle ({int((~used).sum())} unused "
+                f"vertices); a cloth vertex needs a triangle for its mass"
+            )
+        springs = geometry.mesh_springs(vertices, triangles)
+        return self._add_cloth(vertices, triangles, springs, material, thickness, pinned, velocity)
+
+    def add_springs(self, pairs, *, stiffness, damping=0.0, rest_length=None) -> None:
+        """Damped springs between particles (forces/springs.py): pairs (S,2) particle indices;
+        stiffness [N/m] and damping [kg/s] scalars or (S,); rest_length [m] (S,), default the current
+        distance. Springs count as the stretch family in reports."""
+        n = self.particle_count
+        p = validate.indices("pairs", pairs, 2, n, "particles").astype(np.int64)
+        if np.any(p[:, 0] == p[:, 1]):
+            raise ParameterError(
+                f"pairs: spring {int(np.argmax(p[:, 0] == p[:, 1]))} joins a particle to itself"
+            )
+        x = np.concatenate(self._x)
+        s = len(p)
+        rest = np.linalg.norm(x[p[:, 0]] - x[p[:, 1]], axis=1) if rest_length is None else rest_length
+        arrays = []
+        for name, value in (("stiffness", stiffness), ("damping", damping), ("rest_length", rest)):
+            a = np.broadcast_to(np.asarray(value, dtype=np.float64), (s,)).copy()
+            if not np.all(np.isfinite(a)) or np.any(a < 0):
+                raise ParameterError(f"{name} must be finite and >= 0, got {value!r}")
+            arrays.append(a)
+        k, c, rest = arrays
+        self._springs.append((p, rest, k, c, np.zeros(s, np.int8)))
+
+    def _add_cloth(self, vertices, triangles, springs, material, thickness, pinned, velocity) -> Cloth:
+        material = ClothMaterial() if material is None else material
+        if not isinstance(material, ClothMaterial):
+            raise ParameterError(f"material must be a ClothMaterial, got {material!r}")
+        thickness = validate.positive("thickness", thickness)
+        nv = len(vertices)
+        pin = np.unique(np.asarray(pinned, dtype=np.int64).reshape(-1))
+        if pin.size and (pin.min() < 0 or pin.max() >= nv):
+            raise ParameterError(f"pinned must hold vertex indices in [0, {nv}), got {pin.tolist()[:8]}")
+        mass = geometry.lumped_masses(vertices, triangles, material.density)
+        mass[pin] = 0.0  # inverse mass 0: the vertex is kinematic
+        v = np.tile(np.asarray(validate.vec3("velocity", velocity)), (nv, 1))
+        idx = self.add_particles(vertices, v, mass, radius=thickness)
+        start = idx.start
+        pairs = springs.pairs
+        rest = np.linalg.norm(vertices[pairs[:, 0]] - vertices[pairs[:, 1]], axis=1)
+        k, c = material.family_arrays(springs.family)
+        keep = k > 0.0  # a family of stiffness 0 adds nothing: leave its springs out
+        self._springs.append((pairs[keep] + start, rest[keep], k[keep], c[keep], springs.family[keep]))
+        tri = triangles.astype(np.int64) + start
+        self._triangles.append(tri)
+        cloth = Cloth(particles=idx, triangles=tri, pinned=pin + start)
+        self.cloths.append(cloth)
+        return cloth
 
     def add_particle_emitter(
         self,
@@ -198,6 +304,19 @@ class Builder:
             self._colliders.append(ColliderPlane(tuple(n), lo[axis], e, mu))
             self._colliders.append(ColliderPlane(tuple(-n), -hi[axis], e, mu))
 
+    def add_collider_sphere(
+        self, center, radius: float, *, restitution: float = 0.5, friction: float = 0.0
+    ) -> None:
+        """Solid ball of `radius` [m] at `center` [m]; restitution and Coulomb friction as for planes."""
+        self._colliders.append(
+            ColliderSphere(
+                validate.vec3("center", center),
+                validate.positive("radius", radius),
+                validate.in_range("restitution", restitution, 0.0, 1.0),
+                validate.non_negative("friction", friction),
+            )
+        )
+
     def add_sphere_contacts(
         self,
         *,
@@ -277,8 +396,23 @@ class Builder:
         terms += [Drag(k, w) for k, w in self._drag]
         if self._anchor_springs:
             terms.append(AnchorSpring(len(x_all), self._anchor_springs))
+        springs = None
+        if self._springs:
+            cols = list(zip(*self._springs, strict=True))
+            springs = dict(
+                pairs=np.concatenate(cols[0]),
+                rest_length=np.concatenate(cols[1]),
+                stiffness=np.concatenate(cols[2]),
+                damping=np.concatenate(cols[3]),
+                family=np.concatenate(cols[4]),
+            )
+        triangles = np.concatenate(self._triangles) if self._triangles else None
         settings = {
             "particles": self.particle_count,
+            "cloths": [
+                {"vertices": len(c.particles), "triangles": len(c.triangles), "pinned": len(c.pinned)}
+                for c in self.cloths
+            ],
             "emitters": [e.settings() for e in emitters],
             "forces": [t.settings() for t in terms],
             "colliders": [c.settings() for c in self._colliders],
@@ -297,6 +431,8 @@ class Builder:
             seed=seed,
             settings=settings,
             contacts=contacts,
+            springs=springs,
+            triangles=triangles,
         )
 
     def _contact_domain(self):

@@ -6,16 +6,31 @@ import numpy as np
 import taichi as ti
 
 from .collision.spheres import ContactSpheres
-from .runtime import np_float, serial_loops
+from .forces.springs import Springs
+from .runtime import data_oriented, np_float, serial_loops
 from .state import ALIVE_FOREVER, State
 
 
-@ti.data_oriented
+@data_oriented
 class Model:
     """Built by `Builder.finalize()`. particle_count includes every emitter's slots."""
 
     def __init__(
-        self, *, x, v, mass, radius, terms, colliders, emitters, trail_length, seed, settings, contacts=None
+        self,
+        *,
+        x,
+        v,
+        mass,
+        radius,
+        terms,
+        colliders,
+        emitters,
+        trail_length,
+        seed,
+        settings,
+        contacts=None,
+        springs=None,
+        triangles=None,
     ):
         n = len(x)
         self.particle_count = n
@@ -61,8 +76,21 @@ class Model:
             self.contacts = ContactSpheres(model=self, **contacts)
             self.rest_speed = self.contacts.rest_speed
             self.settings["sphere_contacts"] = self.contacts.settings()
+        # Springs (cloth): a force term coupling particles, so force evaluation gathers over fields.
+        self.springs = None
+        self.spring_count = 0
+        if springs is not None and len(springs["pairs"]):
+            self.springs = Springs(n, **springs)
+            self.spring_count = self.springs.count
+            self.settings["springs"] = self.springs.settings()
+        self.coupled = self.springs is not None  # integrators branch on it at compile time
+        # Cloth triangles (F,3) over particle indices, for export and rendering only; None without cloth.
+        self.triangles = None if triangles is None or len(triangles) == 0 else np.asarray(triangles)
+        self.triangle_count = 0 if self.triangles is None else len(self.triangles)
         # Small scenes are launch-bound on the CPU: their particle loops run serially (compile-time).
-        self.serial = serial_loops(n)
+        # A particle's work grows with its springs, which count towards the size.
+        work = n + (self.springs.entry_count if self.springs is not None else 0)
+        self.serial = serial_loops(work)
 
     def state(self) -> State:
         """A fresh State at t = 0: the builder's particles in place, every emitter slot dead."""
@@ -153,6 +181,33 @@ class Model:
     @ti.func
     def accel(self, i, x, v, t):
         return self.force(i, x, v, t) * self.inv_mass(i)
+
+    @ti.func
+    def accel_from(self, i, xf: ti.template(), vf: ti.template(), t):
+        """Acceleration of particle i with every particle at the positions xf and velocities vf (fields):
+        the pointwise terms plus the springs, which read the other ends from the fields."""
+        f = self.force(i, xf[i], vf[i], t)
+        if ti.static(self.coupled):
+            f += self.springs.force(i, xf, vf)
+        return f * self.inv_mass(i)
+
+    def forces(self, x, v, t: float = 0.0) -> np.ndarray:
+        """(N,3) total force [N] on every particle at positions x (N,3) [m] and velocities v (N,3) [m/s]
+        (pointwise terms and springs; for tests and reports)."""
+        n = self.particle_count
+        xf, vf, ff = (ti.Vector.field(3, float, n) for _ in range(3))
+        xf.from_numpy(np.asarray(x, dtype=np_float()))
+        vf.from_numpy(np.asarray(v, dtype=np_float()))
+        self._forces(xf, vf, ff, t)
+        return ff.to_numpy().astype(np.float64)
+
+    @ti.kernel
+    def _forces(self, xf: ti.template(), vf: ti.template(), ff: ti.template(), t: float):
+        for i in range(self.particle_count):
+            f = self.force(i, xf[i], vf[i], t)
+            if ti.static(self.coupled):
+                f += self.springs.force(i, xf, vf)
+            ff[i] = f
 
     def particle_radii(self, idx: np.ndarray) -> np.ndarray:
         """(N,) radii [m] of particles idx (0 for points)."""

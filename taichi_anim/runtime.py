@@ -87,3 +87,25 @@ def np_float():
     import numpy as np
 
     return np.float64 if float_dtype() == ti.f64 else np.float32
+
+
+def data_oriented(cls):
+    """`ti.data_oriented` with a fast attribute path.
+
+    Taichi's decorator replaces `__getattribute__` on the class with a Python function (to bind kernels),
+    so every attribute read, and every failed `isinstance` on an instance (it reads `__class__`), costs a
+    Python call: a kernel launch with the model, the state and the solver as template arguments paid
+    ~20 of them, tens of microseconds per launch (measured, issue 4). Here only the kernel names go
+    through Taichi's binding; every other attribute is read the normal way, with the same result.
+    """
+    cls = ti.data_oriented(cls)
+    taichi_getattr = cls.__getattribute__
+    kernels = frozenset(n for n in dir(cls) if hasattr(getattr(cls, n, None), "_is_wrapped_kernel"))
+
+    def __getattribute__(self, item):
+        if item in kernels:
+            return taichi_getattr(self, item)
+        return object.__getattribute__(self, item)
+
+    cls.__getattribute__ = __getattribute__
+    return cls

@@ -7,6 +7,7 @@ import numpy as np
 import taichi as ti
 
 from .errors import DivergenceError
+from .runtime import data_oriented
 
 ALIVE_FOREVER = 1.0e30
 
@@ -27,7 +28,7 @@ class ParticleSnapshot:
     trails: np.ndarray | None
 
 
-@ti.data_oriented
+@data_oriented
 class State:
     """Dynamic data of a Model: particle_x, particle_v (N,3); particle_birth/death (N,) [s] when the
     model has emitters; trail (N,K,3) ring buffer when trails are on."""

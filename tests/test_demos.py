@@ -7,7 +7,7 @@ import pytest
 
 import taichi_anim as ta
 from taichi_anim.cli import main
-from taichi_anim.io.export import read_line_set, read_point_cloud
+from taichi_anim.io.export import read_line_set, read_point_cloud, read_triangle_mesh
 from taichi_anim.scenes import SCENES, make_scene
 
 
@@ -21,9 +21,17 @@ def test_demo_runs_and_exports(name, tmp_path, capsys):
     assert manifest["settings"]["dt"] > 0 and "integrator" in manifest["settings"]
     assert manifest["timings"]["steps"] == 4 * manifest["settings"]["substeps"]
     assert (tmp_path / f"{name}_last.png").stat().st_size > 1000
-    cloud = read_point_cloud(tmp_path / f"{name}_0003.ply")
-    assert len(cloud["points"]) == manifest["timings"]["particles_alive"] > 0
-    assert np.all(np.isfinite(cloud["points"]))
+    cloths = manifest["settings"]["model"]["cloths"]
+    if cloths:  # a cloth scene exports its cloth as a mesh with unit vertex normals
+        mesh = read_triangle_mesh(tmp_path / f"{name}_0003.ply")
+        assert len(mesh["vertices"]) == sum(c["vertices"] for c in cloths)
+        assert len(mesh["triangles"]) == sum(c["triangles"] for c in cloths)
+        assert np.allclose(np.linalg.norm(mesh["vertex_normals"], axis=1), 1.0, atol=1e-6)
+        points = mesh["vertices"]
+    else:
+        points = read_point_cloud(tmp_path / f"{name}_0003.ply")["points"]
+    assert len(points) == manifest["timings"]["particles_alive"] > 0
+    assert np.all(np.isfinite(points))
 
 
 def test_fountain_particles_stay_in_box_and_trails_export(tmp_path):
@@ -54,6 +62,65 @@ def test_spheres_demo_exports_radii_and_keeps_spheres_in_the_box(tmp_path):
     assert cloud["points"][:, 1].min() < 2 * r  # some lie on the floor
     overlap, contacts = scene.model.contacts.overlap_stats(scene.state)
     assert contacts > 1000 and overlap < 0.25 * r  # mid-impact, one sweep per 1/2400 s step
+
+
+def _edge_lengths(x, triangles):
+    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    return np.linalg.norm(x[e[:, 0]] - x[e[:, 1]], axis=1)
+
+
+def test_cloth_demo_swings_from_its_pins_without_stretching(tmp_path):
+    ta.init("cpu")
+    scene = make_scene("cloth", resolution=20)
+    x0, triangles, _ = scene.cloth_mesh()
+    pinned = np.array(scene.options["pinned"])
+    rest = _edge_lengths(x0, triangles)
+    for _ in range(30):  # 0.5 s: about a quarter swing of the 1 m sheet
+        scene.advance_frame()
+    x, _, _ = scene.cloth_mesh()
+    assert np.array_equal(x[pinned], x0[pinned])  # pinned vertices are kinematic, at rest
+    assert x[:, 1].mean() < x0[:, 1].mean() - 0.2  # the sheet fell: its centre of mass dropped
+    assert np.all(_edge_lengths(x, triangles) < 1.5 * rest)  # stiff springs held under the swing
+    assert scene.integrator.last_solve.converged
+    assert 0 < scene.integrator.settings()["mean_iterations"] <= 200
+
+    mesh = read_triangle_mesh(scene.export_frame(tmp_path, 7)[0])
+    assert mesh["vertices"].shape == (400, 3) and mesh["triangles"].shape == (2 * 19 * 19, 3)
+    assert np.allclose(mesh["vertices"], x) and np.array_equal(mesh["triangles"], triangles)
+    assert np.allclose(np.linalg.norm(mesh["vertex_normals"], axis=1), 1.0, atol=1e-6)
+
+
+def test_cloth_demo_runs_with_an_explicit_integrator():
+    ta.init("cpu")
+    scene = make_scene("cloth", resolution=16, integrator="symplectic_euler")
+    assert scene.substeps > 4 and scene.frame_dt == pytest.approx(1 / 60)  # explicit: a stable dt
+    for _ in range(3):
+        scene.advance_frame()
+    assert np.all(np.isfinite(scene.cloth_mesh()[0]))
+
+
+def test_drape_demo_rests_on_the_ball_and_the_floor(tmp_path):
+    ta.init("cpu")
+    scene = make_scene("drape", resolution=24)
+    o = scene.options
+    center, r, thickness = np.array(o["ball_center"]), o["ball_radius"], o["thickness"]
+    for _ in range(60):  # 1 s: fallen, draped, nearly at rest
+        scene.advance_frame()
+    x, _, _ = scene.cloth_mesh()
+    dist = np.linalg.norm(x - center, axis=1)
+    assert dist.min() >= r + thickness - 1e-4  # no vertex inside the ball (radius = thickness)
+    assert x[:, 1].min() >= thickness - 1e-4  # nor below the floor
+    assert (x[:, 1] < thickness + 0.01).sum() > 20  # the skirt lies on the floor
+    # Over the top of the ball the cloth rests on it: most vertices touch, none floats far off.
+    top = (np.linalg.norm((x - center)[:, [0, 2]], axis=1) < 0.5 * r) & (x[:, 1] > center[1])
+    gap = dist[top] - r - thickness
+    assert top.sum() >= 8 and np.mean(gap < 2e-3) >= 0.6 and gap.max() < 0.04
+
+    mesh = read_triangle_mesh(scene.export_frame(tmp_path, 60)[0])
+    assert mesh["vertices"].shape == (24 * 24, 3) and mesh["triangles"].shape == (2 * 23 * 23, 3)
+    normals = mesh["vertex_normals"]
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-6)
+    assert np.all(normals[top][:, 1] > 0.7)  # the cloth's front (+y at rest) faces up on the ball
 
 
 def test_cli_lists_demos_and_rejects_bad_input(capsys):

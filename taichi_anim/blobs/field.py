@@ -31,14 +31,14 @@ import taichi as ti
 from .. import validate
 from ..collision.neighbors import make_neighbor_search
 from ..errors import ParameterError
-from ..runtime import np_float
+from ..runtime import data_oriented, np_float
 
 BLOCK = 8  # nodes per block edge: 512 nodes, a unit of work big enough to hide the loop overhead
 BLOCK3 = BLOCK**3
 DEFAULT_CUTOFF = 3.0  # in units of sigma; see the module docstring
 
 
-@ti.data_oriented
+@data_oriented
 class BlobField:
     """psi on a grid of nodes lo + spacing * (i, j, k) spanning `bounds`.
 

@@ -20,6 +20,7 @@ only on the block order, so the mesh is the same on any thread count.
 import numpy as np
 import taichi as ti
 
+from ..runtime import data_oriented
 from .field import BLOCK3, BlobField
 
 CORNER = [
@@ -67,7 +68,7 @@ def triangle_table() -> tuple[np.ndarray, np.ndarray]:
     return count, edges
 
 
-@ti.data_oriented
+@data_oriented
 class MarchingTetrahedra:
     """Isosurface extractor over a BlobField's flagged blocks; scratch: one i32 per grid node."""
 

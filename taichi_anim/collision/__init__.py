@@ -1,6 +1,6 @@
 """Colliders (signed-distance shapes as `@ti.func`s) and the collision response applied after each step."""
 
-from .colliders import ColliderPlane, ColliderSolidBox, CollisionMode
+from .colliders import ColliderPlane, ColliderSolidBox, ColliderSphere, CollisionMode
 from .response import collide
 
-__all__ = ["CollisionMode", "ColliderPlane", "ColliderSolidBox", "collide"]
+__all__ = ["CollisionMode", "ColliderPlane", "ColliderSolidBox", "ColliderSphere", "collide"]

@@ -11,6 +11,8 @@ from enum import Enum
 
 import taichi as ti
 
+from ..runtime import data_oriented
+
 NO_HIT = 2.0
 
 
@@ -27,7 +29,7 @@ class CollisionMode(Enum):
     BACKWARD = "backward"
 
 
-@ti.data_oriented
+@data_oriented
 class ColliderPlane:
     """Half-space n . x < offset is solid. normal (3,) unit, offset [m], restitution e in [0, 1],
     friction mu >= 0 (Coulomb, on the collision impulse)."""
@@ -65,7 +67,7 @@ class ColliderPlane:
         return tau, ti.Vector(self.n, dt=float)
 
 
-@ti.data_oriented
+@data_oriented
 class ColliderSolidBox:
     """Axis-aligned solid box lo <= x <= hi [m] (a thin one is a slab); particles stay outside."""
 
@@ -140,4 +142,57 @@ class ColliderSolidBox:
         if t_enter <= t_exit and 0.0 <= t_enter <= 1.0 and self.sdf(x0) >= r:
             tau = t_enter
             n[axis] = -1.0 if d[axis] > 0.0 else 1.0
+        return tau, n
+
+
+@data_oriented
+class ColliderSphere:
+    """Solid ball |x - center| < radius [m]; particles (and cloth vertices, radius = thickness) stay out."""
+
+    def __init__(self, center, radius: float, restitution: float, friction: float):
+        self.center = tuple(float(c) for c in center)
+        self.radius = float(radius)
+        self.restitution = float(restitution)
+        self.friction = float(friction)
+
+    def settings(self) -> dict:
+        return {
+            "type": "sphere",
+            "center": self.center,
+            "radius": self.radius,
+            "restitution": self.restitution,
+            "friction": self.friction,
+        }
+
+    @ti.func
+    def sdf(self, x):
+        return (x - ti.Vector(self.center, dt=float)).norm() - self.radius
+
+    @ti.func
+    def normal(self, x):
+        d = x - ti.Vector(self.center, dt=float)
+        n = ti.Vector([0.0, 1.0, 0.0], dt=float)  # the centre itself: push up (any direction is valid)
+        length = d.norm()
+        if length > 1e-12:
+            n = d / length
+        return n
+
+    @ti.func
+    def sweep(self, x0, x1, r):
+        # First root of |x0 + tau (x1 - x0) - c| = R + r on [0, 1] (segment against the grown ball).
+        c = ti.Vector(self.center, dt=float)
+        rr = self.radius + r
+        d = x1 - x0
+        m = x0 - c
+        a = d.dot(d)
+        b = m.dot(d)
+        q = m.dot(m) - rr * rr
+        tau = NO_HIT
+        n = ti.Vector.zero(float, 3)
+        disc = b * b - a * q
+        if q >= 0.0 and a > 1e-30 and b < 0.0 and disc >= 0.0:
+            t_hit = (-b - ti.sqrt(disc)) / a
+            if t_hit <= 1.0:
+                tau = ti.max(t_hit, 0.0)
+                n = self.normal(x0 + tau * d)
         return tau, n

@@ -23,7 +23,7 @@ import taichi as ti
 
 from .. import validate
 from ..errors import ParameterError
-from ..runtime import serial_loops
+from ..runtime import data_oriented, serial_loops
 from .prefix_sum import PrefixSum
 
 # Below these many particles brute force (build + one query pass) beats the bounded grid / the hashed
@@ -43,7 +43,7 @@ class NeighborMethod(Enum):
     HASH_GRID = "hash_grid"
 
 
-@ti.data_oriented
+@data_oriented
 class _NeighborSearch:
     """Common part: sorted_id[k] (slot -> particle), sorted_x[k] (build-time positions), size[None]."""
 
@@ -90,7 +90,7 @@ class _NeighborSearch:
             visit(i, k, ret)
 
 
-@ti.data_oriented
+@data_oriented
 class NeighborBrute(_NeighborSearch):
     """Every particle is a candidate of every query: the O(N^2) reference, and the fastest for small N."""
 
@@ -117,7 +117,7 @@ class NeighborBrute(_NeighborSearch):
             self._offer(i, k, p, r2, check, visit, ret)
 
 
-@ti.data_oriented
+@data_oriented
 class NeighborGrid(_NeighborSearch):
     """Uniform grid of cubic cells of side >= radius, counting-sorted.
 

@@ -9,10 +9,12 @@ passes and one serial pass over n / B totals.
 
 import taichi as ti
 
+from ..runtime import data_oriented
+
 BLOCK = 1024
 
 
-@ti.data_oriented
+@data_oriented
 class PrefixSum:
     """Scratch for scanning up to `capacity` integers; serial=True runs every pass on one thread (for
     small, launch-bound scans on the CPU)."""

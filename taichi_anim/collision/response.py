@@ -28,24 +28,32 @@ def respond(v, n, restitution, friction):
 
 
 @ti.func
-def _project(colliders: ti.template(), x, v, r, rest_speed):
+def _project(colliders: ti.template(), x, v, r, rest_speed, x_prev):
     # One branch for the common case (touching nothing), not one per collider: a branch-free minimum
     # (a short-circuit `and` would compile to one branch per collider again).
     nearest = ti.cast(1e30, float)
     for c in ti.static(colliders):
         nearest = ti.min(nearest, c.sdf(x))
     if nearest < r:
-        x, v = _project_each(colliders, x, v, r, rest_speed)
+        x, v = _project_each(colliders, x, v, r, rest_speed, x_prev)
     return x, v
 
 
 @ti.func
-def _project_each(colliders: ti.template(), x, v, r, rest_speed):
+def _project_each(colliders: ti.template(), x, v, r, rest_speed, x_prev):
     for c in ti.static(colliders):
         d = c.sdf(x) - r
         if d < 0.0:
             n = c.normal(x)
             x -= d * n
+            # Coulomb friction on the step's tangential displacement too (Macklin et al., "Unified
+            # Particle Physics for Real-Time Applications", 2014, eq. 24): it shrinks by mu times the
+            # depth pushed out, so a vertex held by static friction does not creep h^2 g sin(theta)
+            # per step down a slope. x_prev is where the step started (x itself: no displacement).
+            dx = x - x_prev
+            dxt = dx - dx.dot(n) * n
+            slip = dxt.norm()
+            x -= (1.0 - ti.max(1.0 - c.friction * (-d) / ti.max(slip, 1e-12), 0.0)) * dxt
             e = c.restitution
             if -v.dot(n) <= rest_speed:
                 e = 0.0  # resting contact: no bounce
@@ -57,7 +65,7 @@ def _project_each(colliders: ti.template(), x, v, r, rest_speed):
 def project_spheres(colliders: ti.template(), x, v, r, rest_speed):
     """A sphere of radius r [m] at x moved out of every collider it overlaps; approach speeds at or
     below rest_speed [m/s] do not bounce."""
-    return _project(colliders, x, v, r, rest_speed)
+    return _project(colliders, x, v, r, rest_speed, x)
 
 
 @ti.func
@@ -94,4 +102,4 @@ def collide(colliders: ti.template(), mode: ti.template(), x0, v0, x1, v1, dt, r
                 xe = xh + frac * dt * ve
         x, v = xe, ve
     # Safety net in both modes: nothing ends a step inside a collider (round-off, multiple contacts).
-    return _project(colliders, x, v, r, rest_speed)
+    return _project(colliders, x, v, r, rest_speed, x0)

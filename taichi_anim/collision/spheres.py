@@ -26,6 +26,7 @@ import warnings
 import taichi as ti
 
 from .. import validate
+from ..runtime import data_oriented
 from .neighbors import make_neighbor_search
 from .response import project_spheres
 
@@ -69,7 +70,7 @@ def pair_velocity(n, vi, wi, vj, wj, vn_before, e, mu, rest_speed):
     return dv
 
 
-@ti.data_oriented
+@data_oriented
 class _PositionSide:
     """One side of the position ping-pong: sphere centres in slot order. The prediction's side records
     each sphere's contacts (the velocity sweep revisits exactly these)."""
@@ -120,7 +121,7 @@ class _PositionSide:
                 ret.n += 1
 
 
-@ti.data_oriented
+@data_oriented
 class ContactSpheres:
     """Sphere-sphere contacts of a model whose particles have radii, and sphere-collider contacts
     (the colliders' restitution and friction, against the surface offset by the radius).

@@ -11,12 +11,12 @@ not symmetric and would break the symmetric solvers; it vanishes when the relati
 import numpy as np
 import taichi as ti
 
-from ..runtime import np_float
+from ..runtime import data_oriented, np_float
 
 _EPS = 1e-12
 
 
-@ti.data_oriented
+@data_oriented
 class AnchorSpring:
     """Per-particle anchor springs; a particle without one has stiffness 0.
 

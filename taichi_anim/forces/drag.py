@@ -3,8 +3,10 @@
 
 import taichi as ti
 
+from ..runtime import data_oriented
 
-@ti.data_oriented
+
+@data_oriented
 class Drag:
     """Linear drag with coefficient `k` [kg/s] towards the air velocity `wind` [m/s]."""
 

@@ -2,10 +2,14 @@
 
 import taichi as ti
 
+from ..runtime import data_oriented
 
-@ti.data_oriented
+
+@data_oriented
 class Gravity:
     """Constant gravitational acceleration `g` [m/s^2] (the engine is Y-up)."""
+
+    has_jacobian = False  # constant force: implicit solvers skip its (zero) blocks at compile time
 
     def __init__(self, g):
         self.g = tuple(float(c) for c in g)

@@ -9,10 +9,11 @@ import taichi as ti
 
 from .. import validate
 from ..errors import DivergenceError
+from ..runtime import data_oriented
 from .base import Integrator, Scratch
 
 
-@ti.data_oriented
+@data_oriented
 class IntegratorAdaptive(Integrator):
     """Step doubling around any fixed-step base integrator (default RK4)."""
 

@@ -11,6 +11,7 @@ import taichi as ti
 
 from .. import validate
 from ..collision import CollisionMode, collide
+from ..runtime import data_oriented
 
 
 def _mode(value) -> CollisionMode:
@@ -20,7 +21,7 @@ def _mode(value) -> CollisionMode:
     return CollisionMode(value)
 
 
-@ti.data_oriented
+@data_oriented
 class Integrator:
     """Base class. Options: collision_mode ("projection" | "backward"); check_every: read the
     divergence counter every this many steps (each read synchronises with the device)."""

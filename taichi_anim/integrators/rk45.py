@@ -9,10 +9,9 @@ from __future__ import annotations
 
 import math
 
-import taichi as ti
-
 from .. import validate
 from ..errors import DivergenceError
+from ..runtime import data_oriented
 from .base import Scratch
 from .runge_kutta import IntegratorRungeKutta, Tableau
 
@@ -34,7 +33,7 @@ DOPRI5 = Tableau(
 )
 
 
-@ti.data_oriented
+@data_oriented
 class IntegratorRK45(IntegratorRungeKutta):
     """Dormand–Prince 5(4) with error control. rtol, atol: tolerances on u = (x [m], v [m/s]);
     h_init [s]: first internal step (default dt); h_min [s]: below it the run is declared diverged.

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import taichi as ti
 
+from ..runtime import data_oriented
 from .base import Integrator
 
 
@@ -26,7 +27,7 @@ class Tableau:
     b_low: tuple | None = None
 
 
-@ti.data_oriented
+@data_oriented
 class IntegratorRungeKutta(Integrator):
     """A fixed-step explicit Runge–Kutta method given by its tableau."""
 
@@ -44,18 +45,30 @@ class IntegratorRungeKutta(Integrator):
         self.rtol = 0.0
         self.atol = 1.0
 
-    def _ensure(self, n: int) -> None:
-        if self.stages > 1 and n != self._k_count:
-            self.kx = ti.Vector.field(3, float, (self.stages - 1, n))
-            self.kv = ti.Vector.field(3, float, (self.stages - 1, n))
+    def _ensure(self, n: int, coupled: bool) -> None:
+        if n != self._k_count:
+            if self.stages > 1:
+                self.kx = ti.Vector.field(3, float, (self.stages - 1, n))
+                self.kv = ti.Vector.field(3, float, (self.stages - 1, n))
             self._k_count = n
+            self.sx = self.sv = None
+        if coupled and self.sx is None:
+            # Coupled forces read every particle's stage state, so stages live in fields: sx[s] for
+            # stage s >= 1, and sx[0] a copy of the start when the step writes over its input.
+            self.sx = [ti.Vector.field(3, float, n) for _ in range(self.stages)]
+            self.sv = [ti.Vector.field(3, float, n) for _ in range(self.stages)]
 
     def advance(self, model, state, xi, vi, xo, vo, ta, t, h, step, finish) -> None:
-        self._ensure(model.particle_count)
+        self._ensure(model.particle_count, model.coupled)
         for s in range(self.stages - 1):
             self._stage(model, state, xi, vi, s, ta, t, h)
-        self._last(model, state, xi, vi, xo, vo, ta, t, h, step, finish)
+        alias = xi is xo or vi is vo
+        self._last(model, state, xi, vi, xo, vo, ta, t, h, step, finish, alias)
         self.evaluations += self.stages
+
+    def _stage_fields(self, xi, vi, s: int):
+        """Fields holding stage s's state (coupled models): the input for stage 0, else sx[s]."""
+        return (xi, vi) if s == 0 else (self.sx[s], self.sv[s])
 
     @ti.func
     def _stage_state(self, i, xi: ti.template(), vi: ti.template(), s: ti.template(), h):
@@ -79,12 +92,22 @@ class IntegratorRungeKutta(Integrator):
         t: float,
         h: float,
     ):
+        ts = t + self.tableau.c[s] * h
         ti.loop_config(serialize=model.serial)
         for i in range(model.particle_count):
             if model.alive(state, i, ta):
-                x, v = self._stage_state(i, xi, vi, s, h)
-                self.kx[s, i] = v
-                self.kv[s, i] = model.accel(i, x, v, t + self.tableau.c[s] * h)
+                if ti.static(model.coupled):
+                    fx, fv = ti.static(self._stage_fields(xi, vi, s))
+                    self.kx[s, i] = fv[i]
+                    self.kv[s, i] = model.accel_from(i, fx, fv, ts)
+                    # The next stage's state needs only this particle's own stage derivatives.
+                    xn, vn = self._stage_state(i, xi, vi, s + 1, h)
+                    self.sx[s + 1][i] = xn
+                    self.sv[s + 1][i] = vn
+                else:
+                    x, v = self._stage_state(i, xi, vi, s, h)
+                    self.kx[s, i] = v
+                    self.kv[s, i] = model.accel(i, x, v, ts)
 
     @ti.kernel
     def _last(
@@ -100,16 +123,32 @@ class IntegratorRungeKutta(Integrator):
         h: float,
         step: ti.i32,
         finish: ti.template(),
+        alias: ti.template(),
     ):
         last = ti.static(self.stages - 1)
+        tl = t + self.tableau.c[last] * h
+        copy = ti.static(model.coupled and last == 0 and alias)
+        if ti.static(copy):
+            # One-stage methods writing over their input: neighbours must read the start of the step.
+            ti.loop_config(serialize=model.serial)
+            for i in range(model.particle_count):
+                self.sx[0][i] = xi[i]
+                self.sv[0][i] = vi[i]
         ti.loop_config(serialize=model.serial)
         for i in range(model.particle_count):
             if model.alive(state, i, ta):
                 x0 = xi[i]
                 v0 = vi[i]
-                xs, vs = self._stage_state(i, xi, vi, last, h)
-                kx_last = vs
-                kv_last = model.accel(i, xs, vs, t + self.tableau.c[last] * h)
+                kx_last = v0
+                kv_last = v0
+                if ti.static(model.coupled):
+                    fx, fv = ti.static((self.sx[0], self.sv[0]) if copy else self._stage_fields(xi, vi, last))
+                    kx_last = fv[i]
+                    kv_last = model.accel_from(i, fx, fv, tl)
+                else:
+                    xs, vs = self._stage_state(i, xi, vi, last, h)
+                    kx_last = vs
+                    kv_last = model.accel(i, xs, vs, tl)
                 dx = self.tableau.b[last] * kx_last
                 dv = self.tableau.b[last] * kv_last
                 for j in ti.static(range(last)):
@@ -148,7 +187,7 @@ RK4 = Tableau(
 )
 
 
-@ti.data_oriented
+@data_oriented
 class IntegratorExplicitEuler(IntegratorRungeKutta):
     """Forward Euler: x1 = x0 + h v0, v1 = v0 + h a(x0, v0). First order; unstable for any h on an
     undamped oscillator (its amplitude grows by sqrt(1 + (h w)^2) per step)."""
@@ -157,7 +196,7 @@ class IntegratorExplicitEuler(IntegratorRungeKutta):
         super().__init__(EXPLICIT_EULER, **options)
 
 
-@ti.data_oriented
+@data_oriented
 class IntegratorMidpoint(IntegratorRungeKutta):
     """Explicit midpoint (RK2): second order, two force evaluations."""
 
@@ -165,7 +204,7 @@ class IntegratorMidpoint(IntegratorRungeKutta):
         super().__init__(MIDPOINT, **options)
 
 
-@ti.data_oriented
+@data_oriented
 class IntegratorRK4(IntegratorRungeKutta):
     """Classic fourth-order Runge–Kutta: four force evaluations."""
 

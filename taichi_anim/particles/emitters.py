@@ -17,7 +17,7 @@ from enum import Enum
 import taichi as ti
 
 from ..rng import uniform
-from ..runtime import serial_loops
+from ..runtime import data_oriented, serial_loops
 
 
 class EmitterShape(Enum):
@@ -83,7 +83,7 @@ def _bit_index(low: ti.u32) -> ti.i32:
     return b
 
 
-@ti.data_oriented
+@data_oriented
 class Emitter:
     """Emits into slots [start, start + capacity) of the particle pool."""
 

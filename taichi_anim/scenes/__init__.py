@@ -1,10 +1,10 @@
 """Demo scenes, by name: what `taichi-anim demo NAME` runs."""
 
 from .. import validate
-from . import blobs, fountain, spheres
+from . import blobs, cloth, drape, fountain, spheres
 from .base import Scene
 
-SCENES = {"fountain": fountain, "blobs": blobs, "spheres": spheres}
+SCENES = {"fountain": fountain, "blobs": blobs, "spheres": spheres, "cloth": cloth, "drape": drape}
 DEFAULT_SCENE = "fountain"
 
 

@@ -9,10 +9,28 @@ from pathlib import Path
 import numpy as np
 
 from ..integrators import Integrator
-from ..io.export import frame_path, trails_to_line_set, write_line_set, write_point_cloud
+from ..io.export import (
+    area_weighted_normals,
+    frame_path,
+    trails_to_line_set,
+    write_line_set,
+    write_point_cloud,
+    write_triangle_mesh,
+)
 from ..model import Model
 from ..render import fit_camera, render_png
-from ..state import State
+from ..state import ParticleSnapshot, State
+
+# Cloth faces: the front (normal towards the camera) and the back in two colours, so folds read clearly;
+# props (colliders drawn for context) in grey.
+CLOTH_FRONT = np.array([0.95, 0.42, 0.3])
+CLOTH_BACK = np.array([0.95, 0.78, 0.42])
+PROP_COLOR = np.array([0.55, 0.58, 0.62])
+# render_png lights with a headlight, which leaves a gently curved sheet one flat colour; a key light
+# from above, baked into the face colours, brings out the folds.
+KEY_LIGHT = np.array([-0.25, 0.8, 0.55]) / np.linalg.norm([-0.25, 0.8, 0.55])
+KEY_AMBIENT = 0.45
+GUIDE_COLOR = (0.35, 0.4, 0.45)
 
 
 @dataclass
@@ -32,6 +50,10 @@ class Scene:
     point_radius: float
     options: dict = field(default_factory=dict)
     frames: int = 120  # what `taichi-anim demo NAME` runs without --frames
+    props: list = field(default_factory=list)
+    guides: tuple | None = None
+    view: tuple = (0.6, 0.45, 1.0)
+    zoom: float = 1.0
 
     @property
     def frame_dt(self) -> float:
@@ -42,40 +64,76 @@ class Scene:
         for _ in range(self.substeps):
             self.integrator.step(self.model, self.state, self.dt)
 
+    def cloth_mesh(self, snap: ParticleSnapshot | None = None):
+        """The cloth surface now, or None without cloth: (vertices (V,3) [m], triangles (F,3) int into
+        them, particle (V,) model index of each vertex). Vertices keep the model's particle order, so a
+        model of cloth only exports its particles as they are numbered (pin indices stay valid)."""
+        tri = self.model.triangles
+        if tri is None:
+            return None
+        snap = self.state.snapshot() if snap is None else snap
+        used = np.unique(tri)
+        rows = np.searchsorted(snap.index, used)  # cloth vertices never die, so every one is in snap
+        return snap.x[rows], np.searchsorted(used, tri), used
+
     def export_frame(self, out_dir, frame: int) -> list[Path]:
-        """Write this frame's point cloud (with velocity and age) and, with trails, its line set."""
+        """Write this frame's point cloud (with velocity and age) and, with trails, its line set. With
+        cloth, `<name>_NNNN.ply` is the cloth mesh with area-weighted vertex normals, and the particles
+        that are no cloth vertex (if any) go to `<name>_particles_NNNN.ply`."""
         snap = self.state.snapshot()
-        paths = [
-            write_point_cloud(
-                frame_path(out_dir, self.name, frame),
-                snap.x,
-                snap.color,
-                attributes={"velocity": snap.v, "age": snap.age},
+        mesh = self.cloth_mesh(snap)
+        paths = []
+        keep = np.ones(len(snap.x), dtype=bool)
+        if mesh is not None:
+            vertices, triangles, particle = mesh
+            normals = area_weighted_normals(vertices, triangles)
+            paths.append(
+                write_triangle_mesh(frame_path(out_dir, self.name, frame), vertices, triangles, normals)
             )
-        ]
+            keep = ~np.isin(snap.index, particle)
+        if mesh is None or keep.any():
+            name = self.name if mesh is None else f"{self.name}_particles"
+            paths.append(
+                write_point_cloud(
+                    frame_path(out_dir, name, frame),
+                    snap.x[keep],
+                    snap.color[keep],
+                    attributes={"velocity": snap.v[keep], "age": snap.age[keep]},
+                )
+            )
         if snap.trails is not None:
             points, lines = trails_to_line_set(snap.trails)
             paths.append(write_line_set(frame_path(out_dir, f"{self.name}_trails", frame), points, lines))
         return paths
 
     def render(self, path, resolution=(960, 720)) -> Path:
-        """A PNG of the current state (headless; no display or Vulkan needed)."""
+        """A PNG of the current state (headless; no display or Vulkan needed): particles as dots, cloth
+        shaded (front and back in two colours), props in grey, trails and guides as lines."""
         snap = self.state.snapshot()
-        camera = fit_camera(*self.bounds, resolution=resolution)
+        lo, hi = (np.asarray(b, dtype=float) for b in self.bounds)
+        camera = fit_camera(lo, hi, direction=self.view, resolution=resolution, margin=1.1 / self.zoom)
         lines = None
         if snap.trails is not None and len(snap.x):
             tr = snap.trails
             lines = (tr[:, :-1].reshape(-1, 3), tr[:, 1:].reshape(-1, 3))
-        lo, hi = (np.asarray(b, dtype=float) for b in self.bounds)
-        box = _box_edges(lo, hi)
-        all_lines = box if lines is None else (np.vstack([lines[0], box[0]]), np.vstack([lines[1], box[1]]))
+        guides = _box_edges(lo, hi) if self.guides is None else self.guides
+        all_lines = (
+            guides if lines is None else (np.vstack([lines[0], guides[0]]), np.vstack([lines[1], guides[1]]))
+        )
+        mesh = self.cloth_mesh(snap)
+        points, colors = snap.x, snap.color
+        if mesh is not None:
+            keep = ~np.isin(snap.index, mesh[2])
+            points, colors = points[keep], colors[keep]
+        triangles = _surfaces(camera.eye, mesh, self.props)
         return render_png(
             path,
-            points=snap.x,
-            colors=snap.color,
+            points=points if len(points) else None,
+            colors=colors if len(points) else None,
             radius_px=2.0,
-            lines=all_lines,
-            line_colors=(0.35, 0.4, 0.45),
+            lines=all_lines if len(all_lines[0]) else None,
+            line_colors=GUIDE_COLOR,
+            triangles=triangles,
             camera=camera,
         )
 
@@ -97,3 +155,36 @@ def _box_edges(lo, hi):
     pairs = [(i, i | 1 << k) for i in range(8) for k in range(3) if not i >> k & 1]
     a, b = zip(*pairs, strict=True)
     return corners[list(a)], corners[list(b)]
+
+
+def _surfaces(eye, mesh, props):
+    """Cloth and props as one (vertices, triangles, face colours) for render_png, or None if empty."""
+    parts = []
+    if mesh is not None:
+        v, f = mesh[0], mesh[1]
+        n = _unit_normals(v, f)
+        front = np.einsum("ij,ij->i", n, np.asarray(eye) - v[f].mean(axis=1)) >= 0.0
+        parts.append((v, f, np.where(front[:, None], CLOTH_FRONT, CLOTH_BACK)))
+    for v, f in props:
+        v, f = np.asarray(v, dtype=float), np.asarray(f)
+        parts.append((v, f, np.tile(PROP_COLOR, (len(f), 1))))
+    if not parts:
+        return None
+    lit = []
+    for v, f, c in parts:
+        # Smooth normals (the face's vertex normals averaged) keep grid-scale ripples from flickering.
+        n = area_weighted_normals(v, f)[f].sum(axis=1)
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+        lit.append((v, f, c * (KEY_AMBIENT + (1.0 - KEY_AMBIENT) * np.abs(n @ KEY_LIGHT))[:, None]))
+    parts = lit
+    offsets = np.cumsum([0] + [len(v) for v, _, _ in parts[:-1]])
+    return (
+        np.vstack([v for v, _, _ in parts]),
+        np.vstack([f + o for (_, f, _), o in zip(parts, offsets, strict=True)]),
+        np.vstack([c for _, _, c in parts]),
+    )
+
+
+def _unit_normals(v, f):
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)

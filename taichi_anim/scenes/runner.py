@@ -82,6 +82,11 @@ def run_scene(
         summary["neighbor_search"] = model.contacts.neighbors.describe()
         summary["sphere_contacts"] = contacts
         summary["max_overlap_over_radius"] = overlap / model.contacts.min_radius
+    solver = getattr(scene.integrator, "linear_solver", None)
+    if model.springs is not None and solver is not None and solver.solves:
+        summary["linear_solver"] = solver.name
+        summary["mean_iterations"] = solver.total_iterations / solver.solves
+        summary["last_residual"] = solver.last.residual
     settings = {**scene.settings(), "frames": frames, "export": export, **(extra_settings or {})}
     summary["manifest"] = str(write_manifest(out, settings, summary))
     return summary
@@ -94,6 +99,11 @@ def summary_line(s: dict) -> str:
         spheres = (
             f"neighbour search {s['neighbor_search']}, {s['sphere_contacts']} contacts, largest overlap "
             f"{100 * s['max_overlap_over_radius']:.2f}% of the radius, "
+        )
+    if "linear_solver" in s:
+        spheres += (
+            f"{s['linear_solver']} {s['mean_iterations']:.1f} iterations per step (last residual "
+            f"{s['last_residual']:.1e}), "
         )
     return (
         f"{s['scene']}: {s['frames']} frames, {s['steps']} steps on {s['arch']}: {s['particles_alive']} "

@@ -1,0 +1,147 @@
+"""Shared pieces of the iterative solvers: options, the result record, and reductions without serial
+tasks.
+
+Each solver iteration is a few parallel loops over blocks of rows, and nothing else: a block writes its
+partial dot products into a slot, and the next loop's blocks each add up those partials themselves, in
+the same fixed order, so every block derives the same scalars (alpha, beta, the stopping test) without a
+serial task in between (each costs a launch on the CPU, PLATFORM.md). On the CPU the order of the sums
+never depends on the thread count, so a solve gives the same bits with 1 or 2 threads (STYLE.md,
+determinism). On GPUs a block is one row and the partials are added with atomics (fast, not bitwise
+reproducible); thread 0 clears a slot one loop before it is reused.
+"""
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+
+import taichi as ti
+
+from .. import validate
+from ..runtime import backend_name, data_oriented
+
+CPU_BLOCK = 256  # rows per block on the CPU (fixed, so results do not depend on the thread count)
+SLOTS = 5  # START (b.b, r.r, r.z of the initial residual) and two parity-alternating pairs per solver
+
+
+class LinearSolverKind(Enum):
+    JACOBI = "jacobi"
+    CG = "cg"
+    PCG = "pcg"
+
+
+@dataclass(frozen=True)
+class LinearSolveResult:
+    """iterations run; residual: final |b - A x| / |b| (2-norms, 0 when b = 0); converged: residual <= tol."""
+
+    iterations: int
+    residual: float
+    converged: bool
+
+
+@data_oriented
+class LinearSolver:
+    """Base: tol (relative residual |b - A x| / |b|), max_iterations, warm_start (start from the last
+    solution instead of 0), check_every (iterations per kernel launch between convergence reads; even)."""
+
+    name = "base"
+
+    def __init__(
+        self, *, tol: float = 1e-4, max_iterations: int = 200, warm_start: bool = True, check_every: int = 8
+    ):
+        self.tol = validate.positive("tol", tol)
+        self.max_iterations = validate.count("max_iterations", max_iterations, 1)
+        self.warm_start = bool(warm_start)
+        self.check_every = 2 * ((validate.count("check_every", check_every, 1) + 1) // 2)
+        self.size = -1
+        self.last = LinearSolveResult(0, 0.0, True)
+        self.total_iterations = 0
+        self.solves = 0
+
+    def settings(self) -> dict:
+        return {
+            "linear_solver": self.name,
+            "tol": self.tol,
+            "max_iterations": self.max_iterations,
+            "warm_start": self.warm_start,
+            "mean_iterations": self.total_iterations / max(self.solves, 1),
+            "last_residual": self.last.residual,
+        }
+
+    def solve(self, system) -> LinearSolveResult:
+        """Solve system.apply(x) = system.rhs into system.solution; returns iterations and residual."""
+        self._ensure(system.size)
+        self._start(system, self.warm_start)
+        base = 0
+        while True:
+            self._iterate(system, self.check_every, base, self.tol, self.max_iterations)
+            base += self.check_every
+            if self.status[0] > 0:
+                break
+        return self._record()
+
+    def _ensure(self, n: int) -> None:
+        if n == self.size:
+            return
+        self.size = n
+        cpu = backend_name() == "cpu"
+        self.block = CPU_BLOCK if cpu else 1
+        self.blocked = cpu
+        self.block_count = math.ceil(n / self.block)
+        self.partial = ti.Vector.field(3, float, (SLOTS, self.block_count)) if cpu else None
+        self.sums = ti.Vector.field(3, float, SLOTS)  # GPU: the slots themselves
+        self.status = ti.field(ti.i32, 2)  # done flag, iterations
+        self.final = ti.field(float, 2)  # r.r and b.b when done
+        self._allocate(n)
+
+    def _allocate(self, n: int) -> None:
+        raise NotImplementedError
+
+    def _record(self) -> LinearSolveResult:
+        it = int(self.status[1])
+        rr, bb = (float(v) for v in self.final.to_numpy())
+        res = math.sqrt(max(rr, 0.0) / bb) if bb > 0 else 0.0
+        self.last = LinearSolveResult(it, res, res <= self.tol)
+        self.total_iterations += it
+        self.solves += 1
+        return self.last
+
+    # ---- helpers used inside the solvers' kernels (blk: a block index; one row per block on GPUs)
+
+    @ti.func
+    def row_end(self, blk):
+        """One past the last row of block blk (its first row is blk * block)."""
+        return ti.min((blk + 1) * self.block, self.size)
+
+    @ti.func
+    def store(self, slot: ti.template(), blk, s):
+        if ti.static(self.blocked):
+            self.partial[slot, blk] = s
+        else:
+            ti.atomic_add(self.sums[slot], s)
+
+    @ti.func
+    def total(self, slot: ti.template()):
+        acc = ti.Vector.zero(float, 3)
+        if ti.static(self.blocked):
+            for b in range(self.block_count):  # inside a parallel loop body: serial, fixed order
+                acc += self.partial[slot, b]
+        else:
+            acc = self.sums[slot]
+        return acc
+
+    @ti.func
+    def clear(self, slot: ti.template(), blk):
+        """Zero a GPU slot (thread 0) a loop before it accumulates again; nothing to do on the CPU."""
+        if ti.static(not self.blocked):
+            if blk == 0:
+                self.sums[slot] = ti.Vector.zero(float, 3)
+
+    @ti.func
+    def finish(self, blk, iterations, rr, bb, stop):
+        """The stopping test every block evaluates identically; block 0 records the result."""
+        if stop and blk == 0:
+            self.status[0] = 1
+            self.status[1] = iterations
+            self.final[0] = rr
+            self.final[1] = bb
+        return stop

@@ -1,0 +1,110 @@
+"""Conjugate gradient, optionally preconditioned (Shewchuk, "An Introduction to the Conjugate Gradient
+Method Without the Agonizing Pain", 1994, sec. B2/B3), with constraint filtering for pinned rows: the
+system returns 0 for a filtered row of A p and of the preconditioner, so p, r and x stay 0 there (Baraff
+& Witkin 1998, sec. 5.3, "modified PCG" with S = 0 on pinned particles). The preconditioner is the
+inverse of A's 3x3 diagonal blocks (block Jacobi); plain CG uses the identity on free rows.
+
+An iteration is three parallel loops (q = A p with p.q; x, r, z updates with r.r and r.z; p = z + beta p)
+and `check_every` iterations run per launch (base.py: no serial tasks). The stopping test |r| <= tol |b|
+(or the iteration cap) is made at the start of an iteration.
+"""
+
+import taichi as ti
+
+from ..runtime import data_oriented
+from .base import LinearSolver
+
+START, PQ0, PQ1, R0, R1 = range(5)  # R slots hold (r.r, r.z, -); the START slot (b.b, r.r, r.z)
+
+
+@data_oriented
+class LinearSolverCG(LinearSolver):
+    """CG (preconditioned=False) or PCG with the block-Jacobi preconditioner (preconditioned=True)."""
+
+    def __init__(self, *, preconditioned: bool = True, **options):
+        super().__init__(**options)
+        self.preconditioned = bool(preconditioned)
+        self.name = "pcg" if preconditioned else "cg"
+
+    def _allocate(self, n: int) -> None:
+        self.r = ti.Vector.field(3, float, n)
+        self.z = ti.Vector.field(3, float, n)
+        self.p = ti.Vector.field(3, float, n)
+        self.q = ti.Vector.field(3, float, n)
+
+    @ti.func
+    def _z(self, system: ti.template(), i, r):
+        z = r
+        if ti.static(self.preconditioned):
+            z = system.precondition(i, r)
+        else:
+            z = system.filter(i, r)
+        return z
+
+    @ti.kernel
+    def _start(self, system: ti.template(), warm: ti.template()):
+        x = ti.static(system.solution)
+        self.status[0] = 0
+        self.status[1] = 0
+        for slot in ti.static(range(5)):
+            self.sums[slot] = ti.Vector.zero(float, 3)
+        for blk in range(self.block_count):
+            s = ti.Vector.zero(float, 3)
+            for i in range(blk * self.block, self.row_end(blk)):
+                b = system.rhs[i]
+                r = b
+                if ti.static(warm):
+                    r = b - system.apply(i, x)
+                else:
+                    x[i] = ti.Vector.zero(float, 3)
+                z = self._z(system, i, r)
+                self.r[i] = r
+                self.z[i] = z
+                self.p[i] = z
+                s += ti.Vector([b.dot(b), r.dot(r), r.dot(z)])
+            self.store(START, blk, s)
+            # The residual of "iteration -1" for the first stopping test and beta.
+            self.store(R1, blk, ti.Vector([s[1], s[2], 0.0]))
+
+    @ti.kernel
+    def _iterate(self, system: ti.template(), unroll: ti.template(), base: ti.i32, tol: float, cap: ti.i32):
+        x = ti.static(system.solution)
+        for k in ti.static(range(unroll)):
+            pq_slot = ti.static(PQ0 if k % 2 == 0 else PQ1)
+            r_new = ti.static(R0 if k % 2 == 0 else R1)
+            r_old = ti.static(R1 if k % 2 == 0 else R0)
+            for blk in range(self.block_count):
+                if self.status[0] == 0:
+                    bb = self.total(START)[0]
+                    rr = self.total(r_old)[0]
+                    stop = rr <= tol * tol * bb or base + k >= cap
+                    if not self.finish(blk, base + k, rr, bb, stop):
+                        self.clear(r_new, blk)
+                        s = ti.Vector.zero(float, 3)
+                        for i in range(blk * self.block, self.row_end(blk)):
+                            q = system.apply(i, self.p)
+                            self.q[i] = q
+                            s[0] += self.p[i].dot(q)
+                        self.store(pq_slot, blk, s)
+            for blk in range(self.block_count):
+                if self.status[0] == 0:
+                    pq = self.total(pq_slot)[0]
+                    alpha = 0.0
+                    if pq > 0.0:  # p = 0 only when the residual is 0 on the free rows
+                        alpha = self.total(r_old)[1] / pq
+                    s = ti.Vector.zero(float, 3)
+                    for i in range(blk * self.block, self.row_end(blk)):
+                        x[i] += alpha * self.p[i]
+                        r = self.r[i] - alpha * self.q[i]
+                        z = self._z(system, i, r)
+                        self.r[i] = r
+                        self.z[i] = z
+                        s += ti.Vector([r.dot(r), r.dot(z), 0.0])
+                    self.store(r_new, blk, s)
+                    self.clear(ti.static(PQ1 if k % 2 == 0 else PQ0), blk)
+            for blk in range(self.block_count):
+                if self.status[0] == 0:
+                    rz_old = self.total(r_old)[1]
+                    beta = self.total(r_new)[1] / ti.max(rz_old, 1e-30)
+                    for i in range(blk * self.block, self.row_end(blk)):
+                        self.p[i] = self.z[i] + beta * self.p[i]
