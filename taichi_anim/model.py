@@ -84,6 +84,7 @@ class Model:
             self.spring_count = self.springs.count
             self.settings["springs"] = self.springs.settings()
         self.coupled = self.springs is not None  # integrators branch on it at compile time
+        self._force_fields = None
         # Cloth triangles (F,3) over particle indices, for export and rendering only; None without cloth.
         self.triangles = None if triangles is None or len(triangles) == 0 else np.asarray(triangles)
         self.triangle_count = 0 if self.triangles is None else len(self.triangles)
@@ -195,7 +196,9 @@ class Model:
         """(N,3) total force [N] on every particle at positions x (N,3) [m] and velocities v (N,3) [m/s]
         (pointwise terms and springs; for tests and reports)."""
         n = self.particle_count
-        xf, vf, ff = (ti.Vector.field(3, float, n) for _ in range(3))
+        if self._force_fields is None:  # once: new fields would recompile the kernel on every call
+            self._force_fields = tuple(ti.Vector.field(3, float, n) for _ in range(3))
+        xf, vf, ff = self._force_fields
         xf.from_numpy(np.asarray(x, dtype=np_float()))
         vf.from_numpy(np.asarray(v, dtype=np_float()))
         self._forces(xf, vf, ff, t)
@@ -208,6 +211,12 @@ class Model:
             if ti.static(self.coupled):
                 f += self.springs.force(i, xf, vf)
             ff[i] = f
+
+    def particle_masses(self) -> np.ndarray:
+        """(N,) masses [kg] (0 for pinned particles)."""
+        if self.particle_mass is None:
+            return np.full(self.particle_count, self.uniform_mass or 0.0)
+        return self.particle_mass.to_numpy().astype(np.float64)
 
     def particle_radii(self, idx: np.ndarray) -> np.ndarray:
         """(N,) radii [m] of particles idx (0 for points)."""

@@ -14,6 +14,9 @@ import taichi as ti
 from ..runtime import data_oriented
 
 NO_HIT = 2.0
+# A point counts as on a surface up to this distance [m]: projection leaves contacts exactly there only to
+# round-off, and a swept test that required sdf >= r strictly would miss the next step's impact.
+ON_SURFACE = 1e-6
 
 
 class CollisionMode(Enum):
@@ -62,8 +65,8 @@ class ColliderPlane:
         d0 = self.sdf(x0) - r
         d1 = self.sdf(x1) - r
         tau = NO_HIT
-        if d0 >= 0.0 and d1 < 0.0:
-            tau = d0 / (d0 - d1)
+        if d0 >= -ON_SURFACE and d1 < 0.0 and d1 < d0:
+            tau = ti.max(d0, 0.0) / (ti.max(d0, 0.0) - d1)
         return tau, ti.Vector(self.n, dt=float)
 
 
@@ -139,8 +142,8 @@ class ColliderSolidBox:
                 t_exit = ti.min(t_exit, ti.max(ta, tb))
         tau = NO_HIT
         n = ti.Vector.zero(float, 3)
-        if t_enter <= t_exit and 0.0 <= t_enter <= 1.0 and self.sdf(x0) >= r:
-            tau = t_enter
+        if t_enter <= t_exit and t_enter <= 1.0 and self.sdf(x0) >= r - ON_SURFACE and t_exit >= 0.0:
+            tau = ti.max(t_enter, 0.0)
             n[axis] = -1.0 if d[axis] > 0.0 else 1.0
         return tau, n
 
@@ -190,7 +193,7 @@ class ColliderSphere:
         tau = NO_HIT
         n = ti.Vector.zero(float, 3)
         disc = b * b - a * q
-        if q >= 0.0 and a > 1e-30 and b < 0.0 and disc >= 0.0:
+        if q >= -2.0 * rr * ON_SURFACE and a > 1e-30 and b < 0.0 and disc >= 0.0:
             t_hit = (-b - ti.sqrt(disc)) / a
             if t_hit <= 1.0:
                 tau = ti.max(t_hit, 0.0)

@@ -100,6 +100,19 @@ def collide(colliders: ti.template(), mode: ti.template(), x0, v0, x1, v1, dt, r
                 frac *= rest
                 xs, vs = xh, vh
                 xe = xh + frac * dt * ve
+        # Impacts left after MAX_HITS (the step's velocity change keeps driving the path into a surface):
+        # stop at the first contact on what is left of the path instead of letting the safety projection
+        # push the particle out of whichever side is nearest, possibly the far side of a thin solid.
+        tau = NO_HIT
+        n = ti.Vector.zero(float, 3)
+        mu = 0.0
+        for c in ti.static(colliders):
+            tc, nc = c.sweep(xs, xe, r)
+            if tc < tau:
+                tau, n, mu = tc, nc, c.friction
+        if tau <= 1.0:
+            xe = xs + tau * (xe - xs)
+            ve = respond(ve, n, 0.0, mu)
         x, v = xe, ve
     # Safety net in both modes: nothing ends a step inside a collider (round-off, multiple contacts).
     return _project(colliders, x, v, r, rest_speed, x0)

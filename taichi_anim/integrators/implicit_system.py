@@ -25,6 +25,7 @@ class ImplicitSystem:
         model.springs.ensure_implicit()
         # Without pointwise Jacobians (gravity only) D_i = m_i I: no 3x3 block to store or read.
         self.pointwise = any(getattr(t, "has_jacobian", True) for t in model.terms)
+        self.mass_norm = float(np.linalg.norm(model.particle_masses()))  # the solvers' absolute floor
         self.rhs = ti.Vector.field(3, float, n)
         self.solution = ti.Vector.field(3, float, n)
         self.block = ti.Matrix.field(3, 3, float, n) if self.pointwise else None
@@ -79,19 +80,23 @@ class ImplicitSystem:
 
     def assemble(self, x, v, h: float, t: float = 0.0) -> None:
         """Build the system at positions x (N,3) [m] and velocities v (N,3) [m/s] for step h [s]."""
-        xf = ti.Vector.field(3, float, self.size)
-        vf = ti.Vector.field(3, float, self.size)
+        xf, vf = self._scratch()
         xf.from_numpy(np.asarray(x, dtype=np_float()))
         vf.from_numpy(np.asarray(v, dtype=np_float()))
         self._assemble_all(xf, vf, t, h)
 
     def matvec(self, p) -> np.ndarray:
         """A p for p (N,3), rows of pinned particles 0."""
-        pf = ti.Vector.field(3, float, self.size)
-        qf = ti.Vector.field(3, float, self.size)
+        pf, qf = self._scratch()
         pf.from_numpy(np.asarray(p, dtype=np_float()))
         self._matvec(pf, qf)
         return qf.to_numpy().astype(np.float64)
+
+    def _scratch(self):
+        # Allocated once: new fields would be new template arguments, and a recompile per call.
+        if not hasattr(self, "_fields"):
+            self._fields = (ti.Vector.field(3, float, self.size), ti.Vector.field(3, float, self.size))
+        return self._fields
 
     @ti.kernel
     def _assemble_all(self, xf: ti.template(), vf: ti.template(), t: float, h: float):

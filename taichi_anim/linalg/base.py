@@ -31,7 +31,8 @@ class LinearSolverKind(Enum):
 
 @dataclass(frozen=True)
 class LinearSolveResult:
-    """iterations run; residual: final |b - A x| / |b| (2-norms, 0 when b = 0); converged: residual <= tol."""
+    """iterations run; residual: final |b - A x| / |b| (2-norms, 0 when b = 0); converged: residual <= tol,
+    or |b - A x| <= atol (the absolute floor, for right-hand sides that are round-off)."""
 
     iterations: int
     residual: float
@@ -67,17 +68,19 @@ class LinearSolver:
             "last_residual": self.last.residual,
         }
 
-    def solve(self, system) -> LinearSolveResult:
-        """Solve system.apply(x) = system.rhs into system.solution; returns iterations and residual."""
+    def solve(self, system, atol: float = 0.0) -> LinearSolveResult:
+        """Solve system.apply(x) = system.rhs into system.solution; stops when |r| <= tol |b| or
+        |r| <= atol (in b's units), or after max_iterations. Returns iterations and residual."""
         self._ensure(system.size)
         self._start(system, self.warm_start)
         base = 0
+        floor = float(atol) ** 2
         while True:
-            self._iterate(system, self.check_every, base, self.tol, self.max_iterations)
+            self._iterate(system, self.check_every, base, self.tol, floor, self.max_iterations)
             base += self.check_every
             if self.status[0] > 0:
                 break
-        return self._record()
+        return self._record(floor)
 
     def _ensure(self, n: int) -> None:
         if n == self.size:
@@ -96,11 +99,11 @@ class LinearSolver:
     def _allocate(self, n: int) -> None:
         raise NotImplementedError
 
-    def _record(self) -> LinearSolveResult:
+    def _record(self, floor: float) -> LinearSolveResult:
         it = int(self.status[1])
         rr, bb = (float(v) for v in self.final.to_numpy())
         res = math.sqrt(max(rr, 0.0) / bb) if bb > 0 else 0.0
-        self.last = LinearSolveResult(it, res, res <= self.tol)
+        self.last = LinearSolveResult(it, res, res <= self.tol or rr <= floor)
         self.total_iterations += it
         self.solves += 1
         return self.last
@@ -135,6 +138,10 @@ class LinearSolver:
         if ti.static(not self.blocked):
             if blk == 0:
                 self.sums[slot] = ti.Vector.zero(float, 3)
+
+    @ti.func
+    def converged(self, rr, bb, tol, floor):
+        return rr <= ti.max(tol * tol * bb, floor)
 
     @ti.func
     def finish(self, blk, iterations, rr, bb, stop):

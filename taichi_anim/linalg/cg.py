@@ -6,7 +6,7 @@ inverse of A's 3x3 diagonal blocks (block Jacobi); plain CG uses the identity on
 
 An iteration is three parallel loops (q = A p with p.q; x, r, z updates with r.r and r.z; p = z + beta p)
 and `check_every` iterations run per launch (base.py: no serial tasks). The stopping test |r| <= tol |b|
-(or the iteration cap) is made at the start of an iteration.
+or |r| <= atol (or the iteration cap) is made at the start of an iteration.
 """
 
 import taichi as ti
@@ -67,7 +67,15 @@ class LinearSolverCG(LinearSolver):
             self.store(R1, blk, ti.Vector([s[1], s[2], 0.0]))
 
     @ti.kernel
-    def _iterate(self, system: ti.template(), unroll: ti.template(), base: ti.i32, tol: float, cap: ti.i32):
+    def _iterate(
+        self,
+        system: ti.template(),
+        unroll: ti.template(),
+        base: ti.i32,
+        tol: float,
+        floor: float,
+        cap: ti.i32,
+    ):
         x = ti.static(system.solution)
         for k in ti.static(range(unroll)):
             pq_slot = ti.static(PQ0 if k % 2 == 0 else PQ1)
@@ -77,7 +85,7 @@ class LinearSolverCG(LinearSolver):
                 if self.status[0] == 0:
                     bb = self.total(START)[0]
                     rr = self.total(r_old)[0]
-                    stop = rr <= tol * tol * bb or base + k >= cap
+                    stop = self.converged(rr, bb, tol, floor) or base + k >= cap
                     if not self.finish(blk, base + k, rr, bb, stop):
                         self.clear(r_new, blk)
                         s = ti.Vector.zero(float, 3)

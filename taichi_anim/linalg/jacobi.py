@@ -41,7 +41,15 @@ class LinearSolverJacobi(LinearSolver):
             self.store(START, blk, s)
 
     @ti.kernel
-    def _iterate(self, system: ti.template(), unroll: ti.template(), base: ti.i32, tol: float, cap: ti.i32):
+    def _iterate(
+        self,
+        system: ti.template(),
+        unroll: ti.template(),
+        base: ti.i32,
+        tol: float,
+        floor: float,
+        cap: ti.i32,
+    ):
         x = ti.static(system.solution)
         for k in ti.static(range(unroll)):
             r_slot = ti.static(R0 if k % 2 == 0 else R1)
@@ -58,7 +66,7 @@ class LinearSolverJacobi(LinearSolver):
                 if self.status[0] == 0:
                     bb = self.total(START)[0]
                     rr = self.total(r_slot)[0]
-                    stop = rr <= tol * tol * bb or base + k >= cap
+                    stop = self.converged(rr, bb, tol, floor) or base + k >= cap
                     if not self.finish(blk, base + k, rr, bb, stop):
                         for i in range(blk * self.block, self.row_end(blk)):
                             x[i] += system.precondition(i, self.r[i])
