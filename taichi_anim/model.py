@@ -184,12 +184,19 @@ class Model:
         return self.force(i, x, v, t) * self.inv_mass(i)
 
     @ti.func
-    def accel_from(self, i, xf: ti.template(), vf: ti.template(), t):
-        """Acceleration of particle i with every particle at the positions xf and velocities vf (fields):
-        the pointwise terms plus the springs, which read the other ends from the fields."""
-        f = self.force(i, xf[i], vf[i], t)
+    def spring_pass(self, xf: ti.template(), vf: ti.template()):
+        """With springs: evaluate every spring at the positions xf and velocities vf (fields), a loop
+        that must come first in the kernel; without springs nothing is compiled."""
         if ti.static(self.coupled):
-            f += self.springs.force(i, xf, vf)
+            self.springs.evaluate(xf, vf, self.serial)
+
+    @ti.func
+    def accel_total(self, i, x, v, t):
+        """Acceleration of particle i at (x, v, t): the pointwise terms plus, after spring_pass, its
+        springs' forces."""
+        f = self.force(i, x, v, t)
+        if ti.static(self.coupled):
+            f += self.springs.force(i)
         return f * self.inv_mass(i)
 
     def forces(self, x, v, t: float = 0.0) -> np.ndarray:
@@ -206,10 +213,11 @@ class Model:
 
     @ti.kernel
     def _forces(self, xf: ti.template(), vf: ti.template(), ff: ti.template(), t: float):
+        self.spring_pass(xf, vf)
         for i in range(self.particle_count):
             f = self.force(i, xf[i], vf[i], t)
             if ti.static(self.coupled):
-                f += self.springs.force(i, xf, vf)
+                f += self.springs.force(i)
             ff[i] = f
 
     def particle_masses(self) -> np.ndarray:

@@ -89,23 +89,35 @@ def np_float():
     return np.float64 if float_dtype() == ti.f64 else np.float32
 
 
+class _BoundKernel:
+    """A class attribute that binds a Taichi kernel to the instance it is read from (what Taichi's own
+    `__getattribute__` does for data-oriented classes, as a descriptor instead)."""
+
+    def __init__(self, kernel):
+        self.kernel = kernel
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self.kernel
+        from taichi.lang.kernel_impl import _BoundedDifferentiableMethod
+
+        return _BoundedDifferentiableMethod(obj, self.kernel)
+
+
 def data_oriented(cls):
-    """`ti.data_oriented` with a fast attribute path.
+    """`ti.data_oriented` with native attribute access.
 
     Taichi's decorator replaces `__getattribute__` on the class with a Python function (to bind kernels),
     so every attribute read, and every failed `isinstance` on an instance (it reads `__class__`), costs a
     Python call: a kernel launch with the model, the state and the solver as template arguments paid
-    ~20 of them, tens of microseconds per launch (measured, issue 4). Here only the kernel names go
-    through Taichi's binding; every other attribute is read the normal way, with the same result.
+    ~20 of them, tens of microseconds per launch (measured, issue 4). Here the class keeps Python's own
+    attribute lookup and each kernel becomes a descriptor that binds it the way Taichi does.
     """
     cls = ti.data_oriented(cls)
-    taichi_getattr = cls.__getattribute__
-    kernels = frozenset(n for n in dir(cls) if hasattr(getattr(cls, n, None), "_is_wrapped_kernel"))
-
-    def __getattribute__(self, item):
-        if item in kernels:
-            return taichi_getattr(self, item)
-        return object.__getattribute__(self, item)
-
-    cls.__getattribute__ = __getattribute__
+    if "__getattribute__" in vars(cls):
+        del cls.__getattribute__
+    for name, attr in list(vars(cls).items()):
+        if hasattr(attr, "_is_wrapped_kernel") and getattr(attr, "_is_classkernel", False):
+            attr._is_staticmethod = False
+            setattr(cls, name, _BoundKernel(attr))
     return cls

@@ -7,9 +7,10 @@ indefinite; it is clamped at 0 (Choi & Ko, "Stable but Responsive Cloth", 2002, 
 case is exact, a compressed spring keeps only its axial stiffness (so a buckling cloth is not forced
 to stay flat). The x-derivative of the damping force is left out, as Baraff & Witkin do (sec. 5).
 
-Forces are gathered per particle over its springs (compressed row storage sorted by particle): each
-spring is evaluated from both ends, twice the arithmetic of a scatter, but no float atomics, so every
-particle's force is a fixed-order sum (deterministic at any thread count) and loops fuse with the update.
+Two passes, no float atomics: a loop over springs evaluates each spring once into a per-spring field,
+then each particle sums its springs' values with their signs over a compressed adjacency list sorted
+by particle, in a fixed order (deterministic at any thread count). The update loop that follows may
+overwrite positions in place, since the spring pass has finished reading them.
 """
 
 import numpy as np
@@ -25,15 +26,7 @@ def spring_force(d, dv, rest, k, c):
     """Force on the end at x_i of one spring, d = x_i - x_j, dv = v_i - v_j."""
     length = d.norm()
     n = d / ti.max(length, _EPS)
-    return -(k * (length - rest) + c * dv.dot(n)) * n
-
-
-@ti.func
-def spring_frame(d, rest):
-    """Unit direction n and the clamped transverse factor max(1 - L/l, 0) of the spring d = x_i - x_j."""
-    length = d.norm()
-    n = d / ti.max(length, _EPS)
-    return n, ti.max(1.0 - rest / ti.max(length, _EPS), 0.0)
+    return -(k * (length - rest) + c * dv.dot(n)) * n, n, length
 
 
 @ti.func
@@ -57,10 +50,11 @@ class Springs:
         self.stiffness = np.asarray(stiffness, dtype=np.float64)
         self.damping = np.asarray(damping, dtype=np.float64)
         self.family = np.zeros(s, np.int8) if family is None else np.asarray(family, np.int8)
-        # Both directed copies of every spring, sorted by the particle that gathers them.
+        # Both ends of every spring, sorted by the particle that gathers them. An entry holds the spring
+        # as +(s+1) at its first end (force +f_s) and -(s+1) at its second (-f_s), and the other end.
         owner = np.concatenate([pairs[:, 0], pairs[:, 1]])
         other = np.concatenate([pairs[:, 1], pairs[:, 0]])
-        spring = np.concatenate([np.arange(s), np.arange(s)])
+        signed = np.concatenate([np.arange(1, s + 1), -np.arange(1, s + 1)])
         order = np.lexsort((other, owner))
         counts = np.bincount(owner, minlength=particle_count)
         start = np.zeros(particle_count + 1, dtype=np.int32)
@@ -69,17 +63,22 @@ class Springs:
         self.max_degree = int(counts.max()) if s else 0
         f = np_float()
         self.adj_start = ti.field(ti.i32, particle_count + 1)
+        self.adj_spring = ti.field(ti.i32, 2 * s)
         self.adj_other = ti.field(ti.i32, 2 * s)
-        self.adj_param = ti.Vector.field(3, float, 2 * s)  # rest length, stiffness, damping
         self.adj_start.from_numpy(start)
+        self.adj_spring.from_numpy(signed[order].astype(np.int32))
         self.adj_other.from_numpy(other[order].astype(np.int32))
-        sp = spring[order]
-        param = np.stack([self.rest_length[sp], self.stiffness[sp], self.damping[sp]], axis=1)
-        self.adj_param.from_numpy(param.astype(f))
-        # Implicit solves store per entry the direction and the two stiffnesses of
-        # S = -(h df/dv + h^2 df/dx) = axial n n^T + transverse (I - n n^T) (allocated on first use).
-        self.adj_n = None
-        self.adj_ab = None
+        self.spring_pair = ti.Vector.field(2, ti.i32, s)
+        self.spring_param = ti.Vector.field(3, float, s)  # rest length, stiffness, damping
+        self.spring_pair.from_numpy(pairs.astype(np.int32))
+        param = np.stack([self.rest_length, self.stiffness, self.damping], axis=1)
+        self.spring_param.from_numpy(param.astype(f))
+        self.spring_f = ti.Vector.field(3, float, s)  # force on the first end, this evaluation
+        # Implicit solves store per spring its direction, (axial, transverse) stiffness of
+        # S = -(h df/dv + h^2 df/dx) = axial n n^T + transverse (I - n n^T), and df/dx (v_i - v_j).
+        self.spring_n = None
+        self.spring_ab = None
+        self.spring_kxv = None
 
     def settings(self) -> dict:
         names = ("stretch", "shear", "bend")
@@ -87,47 +86,70 @@ class Springs:
         return {"type": "springs", "count": self.count, "families": fam}
 
     def ensure_implicit(self) -> None:
-        if self.adj_n is None:
-            self.adj_n = ti.Vector.field(3, float, self.entry_count)
-            self.adj_ab = ti.Vector.field(2, float, self.entry_count)
+        if self.spring_n is None:
+            self.spring_n = ti.Vector.field(3, float, self.count)
+            self.spring_ab = ti.Vector.field(2, float, self.count)
+            self.spring_kxv = ti.Vector.field(3, float, self.count)
 
     @ti.func
-    def force(self, i, xf: ti.template(), vf: ti.template()):
-        """Sum of spring forces on particle i at the positions xf and velocities vf (fields)."""
-        xi = xf[i]
-        vi = vf[i]
+    def evaluate(self, xf: ti.template(), vf: ti.template(), serial: ti.template()):
+        """The spring pass (a top-level loop: call it first in a kernel): every spring's force at the
+        positions xf and velocities vf (fields) into spring_f."""
+        ti.loop_config(serialize=serial)
+        for s in range(self.count):
+            ij = self.spring_pair[s]
+            p = self.spring_param[s]
+            f, _, _ = spring_force(xf[ij[0]] - xf[ij[1]], vf[ij[0]] - vf[ij[1]], p[0], p[1], p[2])
+            self.spring_f[s] = f
+
+    @ti.func
+    def force(self, i):
+        """Sum of the forces of the last spring pass on particle i."""
         f = ti.Vector.zero(float, 3)
         for e in range(self.adj_start[i], self.adj_start[i + 1]):
-            j = self.adj_other[e]
-            p = self.adj_param[e]
-            f += spring_force(xi - xf[j], vi - vf[j], p[0], p[1], p[2])
+            s = self.adj_spring[e]
+            if s > 0:
+                f += self.spring_f[s - 1]
+            else:
+                f -= self.spring_f[-s - 1]
         return f
 
     @ti.func
-    def assemble(self, i, xf: ti.template(), vf: ti.template(), h):
-        """Spring force on i, (df/dx v)_i, and the diagonal block sum_s S_s; stores each entry's n and
-        (axial, transverse) of S_s = -(h df/dv + h^2 df/dx) for the matrix-free products."""
-        xi = xf[i]
-        vi = vf[i]
+    def evaluate_implicit(self, xf: ti.template(), vf: ti.template(), h, serial: ti.template()):
+        """The spring pass of an implicit step (top-level loop): force, direction, the two stiffnesses of
+        S_s and df/dx (v_i - v_j) with the clamped Jacobian, so b matches the matrix that is solved."""
+        ti.loop_config(serialize=serial)
+        for s in range(self.count):
+            ij = self.spring_pair[s]
+            p = self.spring_param[s]
+            dv = vf[ij[0]] - vf[ij[1]]
+            f, n, length = spring_force(xf[ij[0]] - xf[ij[1]], dv, p[0], p[1], p[2])
+            tr = ti.max(1.0 - p[0] / ti.max(length, _EPS), 0.0)
+            self.spring_f[s] = f
+            self.spring_n[s] = n
+            self.spring_ab[s] = ti.Vector([h * p[2] + h * h * p[1], h * h * p[1] * tr])
+            self.spring_kxv[s] = -spring_stiffness_apply(n, p[1], p[1] * tr, dv)
+
+    @ti.func
+    def assemble(self, i):
+        """After evaluate_implicit: the spring force on i, (df/dx v)_i and the diagonal block sum_s S_s."""
         f = ti.Vector.zero(float, 3)
         kxv = ti.Vector.zero(float, 3)
         diag = ti.Matrix.zero(float, 3, 3)
         eye = ti.Matrix.identity(float, 3)
         for e in range(self.adj_start[i], self.adj_start[i + 1]):
-            j = self.adj_other[e]
-            p = self.adj_param[e]
-            d = xi - xf[j]
-            dv = vi - vf[j]
-            f += spring_force(d, dv, p[0], p[1], p[2])
-            n, tr = spring_frame(d, p[0])
-            # df/dx (v_i - v_j) with the clamped Jacobian, so b matches the matrix that is solved.
-            kxv -= spring_stiffness_apply(n, p[1], p[1] * tr, dv)
-            axial = h * p[2] + h * h * p[1]
-            transverse = h * h * p[1] * tr
-            self.adj_n[e] = n
-            self.adj_ab[e] = ti.Vector([axial, transverse])
+            s = self.adj_spring[e]
+            sign = 1.0
+            if s < 0:
+                sign = -1.0
+                s = -s
+            s -= 1
+            f += sign * self.spring_f[s]
+            kxv += sign * self.spring_kxv[s]
+            n = self.spring_n[s]
+            ab = self.spring_ab[s]
             nn = n.outer_product(n)
-            diag += axial * nn + transverse * (eye - nn)
+            diag += ab[0] * nn + ab[1] * (eye - nn)
         return f, kxv, diag
 
     @ti.func
@@ -137,6 +159,7 @@ class Springs:
         pi = pf[i]
         acc = ti.Vector.zero(float, 3)
         for e in range(self.adj_start[i], self.adj_start[i + 1]):
-            ab = self.adj_ab[e]
-            acc += spring_stiffness_apply(self.adj_n[e], ab[0], ab[1], pi - pf[self.adj_other[e]])
+            s = ti.abs(self.adj_spring[e]) - 1
+            ab = self.spring_ab[s]
+            acc += spring_stiffness_apply(self.spring_n[s], ab[0], ab[1], pi - pf[self.adj_other[e]])
         return acc

@@ -76,6 +76,7 @@ class IntegratorImplicitEuler(Integrator):
         t: float,
         h: float,
     ):
+        system.spring_pass(xi, vi, h)
         ti.loop_config(serialize=model.serial)
         for i in range(model.particle_count):
             system.assemble_row(i, xi, vi, t, h)

@@ -56,11 +56,16 @@ class ImplicitSystem:
         return self.inv_block[i] @ r
 
     @ti.func
+    def spring_pass(self, xf: ti.template(), vf: ti.template(), h):
+        """Evaluate every spring's force and blocks (a top-level loop: first in the kernel)."""
+        self.model.springs.evaluate_implicit(xf, vf, h, self.model.serial)
+
+    @ti.func
     def assemble_row(self, i, xf: ti.template(), vf: ti.template(), t, h):
-        """Fill b_i, D_i and the inverse diagonal block of row i; the springs store their blocks."""
+        """After spring_pass: fill b_i, D_i and the inverse diagonal block of row i."""
         x = xf[i]
         v = vf[i]
-        f, kxv, spring_diag = self.model.springs.assemble(i, xf, vf, h)
+        f, kxv, spring_diag = self.model.springs.assemble(i)
         fp = self.model.force(i, x, v, t)
         kx, kv = self.model.force_jacobian(i, x, v, t)
         d = self.model.mass(i) * ti.Matrix.identity(float, 3) - h * kv - h * h * kx
@@ -100,6 +105,7 @@ class ImplicitSystem:
 
     @ti.kernel
     def _assemble_all(self, xf: ti.template(), vf: ti.template(), t: float, h: float):
+        self.spring_pass(xf, vf, h)
         for i in range(self.size):
             self.assemble_row(i, xf, vf, t, h)
 

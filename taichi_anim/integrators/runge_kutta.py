@@ -52,18 +52,16 @@ class IntegratorRungeKutta(Integrator):
                 self.kv = ti.Vector.field(3, float, (self.stages - 1, n))
             self._k_count = n
             self.sx = self.sv = None
-        if coupled and self.sx is None:
-            # Coupled forces read every particle's stage state, so stages live in fields: sx[s] for
-            # stage s >= 1, and sx[0] a copy of the start when the step writes over its input.
-            self.sx = [ti.Vector.field(3, float, n) for _ in range(self.stages)]
-            self.sv = [ti.Vector.field(3, float, n) for _ in range(self.stages)]
+        if coupled and self.sx is None and self.stages > 1:
+            # Springs read every particle's stage state, so stages s >= 1 live in fields sx[s], sv[s].
+            self.sx = [None] + [ti.Vector.field(3, float, n) for _ in range(1, self.stages)]
+            self.sv = [None] + [ti.Vector.field(3, float, n) for _ in range(1, self.stages)]
 
     def advance(self, model, state, xi, vi, xo, vo, ta, t, h, step, finish) -> None:
         self._ensure(model.particle_count, model.coupled)
         for s in range(self.stages - 1):
             self._stage(model, state, xi, vi, s, ta, t, h)
-        alias = xi is xo or vi is vo
-        self._last(model, state, xi, vi, xo, vo, ta, t, h, step, finish, alias)
+        self._last(model, state, xi, vi, xo, vo, ta, t, h, step, finish)
         self.evaluations += self.stages
 
     def _stage_fields(self, xi, vi, s: int):
@@ -93,13 +91,16 @@ class IntegratorRungeKutta(Integrator):
         h: float,
     ):
         ts = t + self.tableau.c[s] * h
+        if ti.static(model.coupled):
+            fx, fv = ti.static(self._stage_fields(xi, vi, s))
+            model.spring_pass(fx, fv)
         ti.loop_config(serialize=model.serial)
         for i in range(model.particle_count):
             if model.alive(state, i, ta):
                 if ti.static(model.coupled):
                     fx, fv = ti.static(self._stage_fields(xi, vi, s))
                     self.kx[s, i] = fv[i]
-                    self.kv[s, i] = model.accel_from(i, fx, fv, ts)
+                    self.kv[s, i] = model.accel_total(i, fx[i], fv[i], ts)
                     # The next stage's state needs only this particle's own stage derivatives.
                     xn, vn = self._stage_state(i, xi, vi, s + 1, h)
                     self.sx[s + 1][i] = xn
@@ -123,17 +124,12 @@ class IntegratorRungeKutta(Integrator):
         h: float,
         step: ti.i32,
         finish: ti.template(),
-        alias: ti.template(),
     ):
         last = ti.static(self.stages - 1)
         tl = t + self.tableau.c[last] * h
-        copy = ti.static(model.coupled and last == 0 and alias)
-        if ti.static(copy):
-            # One-stage methods writing over their input: neighbours must read the start of the step.
-            ti.loop_config(serialize=model.serial)
-            for i in range(model.particle_count):
-                self.sx[0][i] = xi[i]
-                self.sv[0][i] = vi[i]
+        if ti.static(model.coupled):
+            fx, fv = ti.static(self._stage_fields(xi, vi, last))
+            model.spring_pass(fx, fv)  # done before the loop below overwrites the input in place
         ti.loop_config(serialize=model.serial)
         for i in range(model.particle_count):
             if model.alive(state, i, ta):
@@ -142,9 +138,9 @@ class IntegratorRungeKutta(Integrator):
                 kx_last = v0
                 kv_last = v0
                 if ti.static(model.coupled):
-                    fx, fv = ti.static((self.sx[0], self.sv[0]) if copy else self._stage_fields(xi, vi, last))
+                    fx, fv = ti.static(self._stage_fields(xi, vi, last))
                     kx_last = fv[i]
-                    kv_last = model.accel_from(i, fx, fv, tl)
+                    kv_last = model.accel_total(i, fx[i], fv[i], tl)
                 else:
                     xs, vs = self._stage_state(i, xi, vi, last, h)
                     kx_last = vs
