@@ -58,6 +58,12 @@ def _project_each(colliders: ti.template(), x, v, r, rest_speed, x_prev):
             if -v.dot(n) <= rest_speed:
                 e = 0.0  # resting contact: no bounce
             v = respond(v, n, e, c.friction)
+    # The friction shift moves a point back along one surface, possibly a hair into another (a corner):
+    # one more position-only pass keeps every collider's sdf >= r.
+    for c in ti.static(colliders):
+        d = c.sdf(x) - r
+        if d < 0.0:
+            x -= d * c.normal(x)
     return x, v
 
 
