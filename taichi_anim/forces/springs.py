@@ -67,7 +67,6 @@ class Springs:
         start = np.zeros(particle_count + 1, dtype=np.int32)
         np.cumsum(counts, out=start[1:])
         self.entry_count = 2 * s
-        self.max_degree = int(counts.max()) if s else 0
         f = np_float()
         self.adj_start = ti.field(ti.i32, particle_count + 1)
         self.adj_spring = ti.field(ti.i32, 2 * s)

@@ -111,6 +111,14 @@ class LinearSolver:
     # ---- helpers used inside the solvers' kernels (blk: a block index; one row per block on GPUs)
 
     @ti.func
+    def reset(self):
+        """Start of a solve (scalar statements first in `_start`): not done, no iterations, sums cleared."""
+        self.status[0] = 0
+        self.status[1] = 0
+        for slot in ti.static(range(SLOTS)):
+            self.sums[slot] = ti.Vector.zero(float, 3)
+
+    @ti.func
     def row_end(self, blk):
         """One past the last row of block blk (its first row is blk * block)."""
         return ti.min((blk + 1) * self.block, self.size)

@@ -27,10 +27,7 @@ class LinearSolverJacobi(LinearSolver):
     @ti.kernel
     def _start(self, system: ti.template(), warm: ti.template()):
         x = ti.static(system.solution)
-        self.status[0] = 0
-        self.status[1] = 0
-        for slot in ti.static(range(5)):
-            self.sums[slot] = ti.Vector.zero(float, 3)
+        self.reset()
         for blk in range(self.block_count):
             s = ti.Vector.zero(float, 3)
             for i in range(blk * self.block, self.row_end(blk)):
