@@ -3,7 +3,7 @@
 for a sweep of linear-solver settings, with the error each one makes at t = 1 s.
 
 Why: the issue's comparison is Newton's implicit (projective-dynamics, Style3D) cloth solver, which managed
-about 6 steps/s at 64² and 1.3 steps/s at 128² at dt = 1/60 on this CPU (PLATFORM.md; not re-measured
+about 6 steps/s at 64² and 1.3 steps/s at 128² at dt = 1/60 on this CPU (measured earlier; not re-measured
 here). Goal: real time at 64² (>= 60 steps/s at dt = 1/60 on 2 cores) and >= 15 steps/s at 128², at an
 error this benchmark reports.
 

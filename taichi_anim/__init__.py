@@ -1,13 +1,14 @@
 """taichi_anim: a Taichi-based particle and cloth animation engine.
 
-build (Builder) -> model + state -> integrators step the state -> read-only output (snapshots, export).
+build (Builder) -> model + state -> a Stepper advances the state with an integrator -> read-only output
+(snapshots, export).
 Taichi is never initialised on import: call `taichi_anim.init(arch=...)`, or let `Builder.finalize()`
 start it on the CPU.
 """
 
 from .blobs import BlobField, BlobMesh, IsosurfaceMethod
 from .builder import Builder
-from .cloth import Cloth, ClothMaterial
+from .cloth import Cloth, ClothMaterial, FabricMaterial
 from .collision import CollisionMode
 from .collision.neighbors import NeighborMethod, make_neighbor_search
 from .errors import DivergenceError, ParameterError
@@ -34,16 +35,40 @@ from .model import Model
 from .particles import EmitterShape
 from .runtime import backend_name, init, is_initialized
 from .state import ParticleSnapshot, State
+from .statics import solve_static
+from .stepper import Stepper
+from .terms import (
+    AeroTriangles,
+    AnchorSpring,
+    BendingDihedral,
+    Drag,
+    ElementTerm,
+    Gravity,
+    MembraneStVK,
+    PointTerm,
+    Springs,
+)
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "AeroTriangles",
+    "AnchorSpring",
+    "BendingDihedral",
+    "Drag",
+    "ElementTerm",
+    "Gravity",
+    "MembraneStVK",
+    "PointTerm",
+    "Springs",
+    "Stepper",
     "INTEGRATORS",
     "BlobField",
     "BlobMesh",
     "Builder",
     "Cloth",
     "ClothMaterial",
+    "FabricMaterial",
     "CollisionMode",
     "DivergenceError",
     "EmitterShape",
@@ -71,4 +96,5 @@ __all__ = [
     "make_integrator",
     "make_linear_solver",
     "make_neighbor_search",
+    "solve_static",
 ]

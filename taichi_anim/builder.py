@@ -8,14 +8,14 @@ import math
 import numpy as np
 
 from . import geometry, validate
-from .cloth import Cloth, ClothMaterial
+from .cloth import Cloth, ClothMaterial, FabricMaterial
 from .collision import ColliderPlane, ColliderSolidBox, ColliderSphere
 from .errors import ParameterError
-from .forces import AnchorSpring, Drag, Gravity
 from .model import Model
 from .particles import Emitter, EmitterShape
 from .particles.emitters import EmitterSettings
 from .runtime import ensure_initialized
+from .terms import AnchorSpring, Drag, Gravity
 
 
 class Builder:
@@ -37,6 +37,8 @@ class Builder:
         self._trail_length = 0
         self._springs: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         self._triangles: list[np.ndarray] = []
+        # Element terms other than springs: factories called by finalize() with (particle count, positions).
+        self._element_terms: list = []
         self.cloths: list[Cloth] = []
 
     @property
@@ -81,7 +83,7 @@ class Builder:
         size=(1.0, 1.0),
         resolution=(32, 32),
         plane: str = "xz",
-        material: ClothMaterial | None = None,
+        material: ClothMaterial | FabricMaterial | None = None,
         thickness: float = 0.005,
         pinned=(),
         velocity=(0.0, 0.0, 0.0),
@@ -108,7 +110,7 @@ class Builder:
         self,
         mesh,
         *,
-        material: ClothMaterial | None = None,
+        material: ClothMaterial | FabricMaterial | None = None,
         thickness: float = 0.005,
         pinned=(),
         velocity=(0.0, 0.0, 0.0),
@@ -153,8 +155,8 @@ class Builder:
 
     def _add_cloth(self, vertices, triangles, springs, material, thickness, pinned, velocity) -> Cloth:
         material = ClothMaterial() if material is None else material
-        if not isinstance(material, ClothMaterial):
-            raise ParameterError(f"material must be a ClothMaterial, got {material!r}")
+        if not isinstance(material, ClothMaterial | FabricMaterial):
+            raise ParameterError(f"material must be a ClothMaterial or a FabricMaterial, got {material!r}")
         thickness = validate.positive("thickness", thickness)
         nv = len(vertices)
         pin = np.unique(np.asarray(pinned, dtype=np.int64).reshape(-1))
@@ -167,14 +169,86 @@ class Builder:
         start = idx.start
         pairs = springs.pairs
         rest = np.linalg.norm(vertices[pairs[:, 0]] - vertices[pairs[:, 1]], axis=1)
-        k, c = material.family_arrays(springs.family)
-        keep = k > 0.0  # a family of stiffness 0 adds nothing: leave its springs out
-        self._springs.append((pairs[keep] + start, rest[keep], k[keep], c[keep], springs.family[keep]))
         tri = triangles.astype(np.int64) + start
         self._triangles.append(tri)
         cloth = Cloth(particles=idx, triangles=tri, pinned=pin + start)
         self.cloths.append(cloth)
+        if isinstance(material, FabricMaterial):
+            self.add_force_membrane(cloth, **material.membrane_options())
+            if material.bending_stiffness > 0.0:
+                self.add_force_bending(
+                    cloth, stiffness=material.bending_stiffness, damping=material.bending_damping
+                )
+            return cloth
+        pairs = springs.pairs
+        rest = np.linalg.norm(vertices[pairs[:, 0]] - vertices[pairs[:, 1]], axis=1)
+        k, c = material.family_arrays(springs.family)
+        keep = k > 0.0  # a family of stiffness 0 adds nothing: leave its springs out
+        self._springs.append((pairs[keep] + start, rest[keep], k[keep], c[keep], springs.family[keep]))
         return cloth
+
+    def _cloth(self, cloth) -> Cloth:
+        if not isinstance(cloth, Cloth) or not any(c is cloth for c in self.cloths):
+            raise ParameterError(
+                f"cloth must be a Cloth returned by this builder's add_cloth_*, got {cloth!r}"
+            )
+        return cloth
+
+    def add_force_membrane(self, cloth: Cloth, **options) -> None:
+        """A StVK triangle membrane on `cloth` (terms/membrane.py), rest shape as added: youngs_modulus
+        [N/m] (areal: Young's modulus times thickness), poisson_ratio in [0, 0.5), damping [s] (Rayleigh,
+        stiffness-proportional); optional warp/weft anisotropy (youngs_warp, youngs_weft [N/m],
+        shear_modulus [N/m], warp_direction)."""
+        from .terms.membrane import MembraneStVK
+
+        tri = self._cloth(cloth).triangles
+        validate.positive("youngs_modulus", options.get("youngs_modulus", 1.0))
+        poisson = validate.non_negative("poisson_ratio", options.get("poisson_ratio", 0.0))
+        if poisson >= 0.5:
+            raise ParameterError(f"poisson_ratio must lie in [0, 0.5), got {poisson!r}")
+        self._element_terms.append(lambda n, x: MembraneStVK(n, tri, x, **options))
+
+    def add_force_bending(self, cloth: Cloth, *, stiffness: float, damping: float = 0.0) -> None:
+        """Dihedral-angle bending on every interior edge of `cloth` (terms/bending.py): stiffness [N m]
+        (a plate's E t^3 / (12 (1 - nu^2))), damping [s] (Rayleigh); rest angles from the rest shape."""
+        from .terms.bending import BendingDihedral, mesh_hinges
+
+        validate.non_negative("stiffness", stiffness)
+        validate.non_negative("damping", damping)
+        hinges = mesh_hinges(self._cloth(cloth).triangles)
+        if len(hinges) and stiffness > 0.0:
+            self._element_terms.append(
+                lambda n, x: BendingDihedral(n, hinges, x, stiffness=stiffness, damping=damping)
+            )
+
+    def add_force_aerodynamics(
+        self,
+        cloth: Cloth,
+        *,
+        wind=(0.0, 0.0, 0.0),
+        density: float = 1.2,
+        drag_coefficient: float = 1.0,
+        lift_coefficient: float = 0.5,
+        **options,
+    ) -> None:
+        """Per-triangle aerodynamic drag and lift on `cloth` against the air velocity `wind` [m/s]
+        (terms/aero.py): air density [kg/m^3], dimensionless coefficients; options: gust_amplitude,
+        gust_frequency [Hz]."""
+        from .terms.aero import AeroTriangles
+
+        tri = self._cloth(cloth).triangles
+        kw = dict(
+            wind=wind,
+            density=density,
+            drag_coefficient=drag_coefficient,
+            lift_coefficient=lift_coefficient,
+            **options,
+        )
+        validate.vec3("wind", wind)
+        validate.positive("density", density)
+        validate.non_negative("drag_coefficient", drag_coefficient)
+        validate.non_negative("lift_coefficient", lift_coefficient)
+        self._element_terms.append(lambda n, x: AeroTriangles(n, tri, **kw))
 
     def add_particle_emitter(
         self,
@@ -432,6 +506,7 @@ class Builder:
             settings=settings,
             contacts=contacts,
             springs=springs,
+            element_terms=[make(len(x_all), x_all) for make in self._element_terms],
             triangles=triangles,
         )
 

@@ -21,6 +21,12 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--arch", choices=runtime.ARCHS, default="cpu", help="Taichi backend (default cpu)")
     d.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     d.add_argument("--integrator", choices=sorted(INTEGRATORS), default=None, help="override the integrator")
+    d.add_argument(
+        "--material",
+        choices=["springs", "membrane"],
+        default=None,
+        help="cloth demos: mass-spring cloth or a continuum membrane + bending (default: springs)",
+    )
     d.add_argument("--no-export", action="store_true", help="do not write per-frame files")
     d.add_argument("--view", action="store_true", help="show a live GGUI window (needs a display and Vulkan)")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -53,6 +59,14 @@ def _demo(args) -> int:
     options = {"seed": args.seed}
     if args.integrator:
         options["integrator"] = args.integrator
+    if args.material:
+        if args.name not in ("cloth", "drape"):
+            print(
+                f"taichi-anim: --material applies to the cloth and drape demos, not {args.name}",
+                file=sys.stderr,
+            )
+            return 2
+        options["material"] = args.material
     scene = make_scene(args.name, **options)
     if args.view:
         from .viewer import Viewer

@@ -43,3 +43,46 @@ class Cloth:
     particles: range
     triangles: np.ndarray
     pinned: np.ndarray
+
+
+@dataclass(frozen=True)
+class FabricMaterial:
+    """A continuum fabric: a StVK triangle membrane plus dihedral bending instead of springs, so the
+    result converges as the mesh is refined. density [kg/m^2]; youngs_modulus [N/m] (areal: Young's
+    modulus times thickness); poisson_ratio in [0, 0.5); bending_stiffness [N m] (E t^3 / (12 (1 - nu^2))
+    for a plate); damping, bending_damping [s]: Rayleigh (stiffness-proportional) damping. Optional
+    warp/weft anisotropy: youngs_warp, youngs_weft, shear_modulus [N/m] along warp_direction (projected
+    on each triangle)."""
+
+    density: float = 0.2
+    youngs_modulus: float = 1.0e3
+    poisson_ratio: float = 0.3
+    bending_stiffness: float = 1.0e-4
+    damping: float = 1.0e-3
+    bending_damping: float = 1.0e-2
+    youngs_warp: float | None = None
+    youngs_weft: float | None = None
+    shear_modulus: float | None = None
+    warp_direction: tuple = (1.0, 0.0, 0.0)
+
+    def __post_init__(self):
+        validate.positive("density", self.density)
+        validate.positive("youngs_modulus", self.youngs_modulus)
+        validate.in_range("poisson_ratio", self.poisson_ratio, 0.0, 0.4999)
+        validate.non_negative("bending_stiffness", self.bending_stiffness)
+        validate.non_negative("damping", self.damping)
+        validate.non_negative("bending_damping", self.bending_damping)
+
+    def membrane_options(self) -> dict:
+        """Keyword options of Builder.add_force_membrane."""
+        opts = dict(
+            youngs_modulus=self.youngs_modulus, poisson_ratio=self.poisson_ratio, damping=self.damping
+        )
+        if self.youngs_warp is not None:
+            opts.update(
+                youngs_warp=self.youngs_warp,
+                youngs_weft=self.youngs_weft,
+                shear_modulus=self.shear_modulus,
+                warp_direction=self.warp_direction,
+            )
+        return opts

@@ -1,14 +1,15 @@
 """Model: the static description of a scene (masses, force terms, colliders, emitters) and its counts.
-Absent parts are empty lists / None with count 0, and kernels branch on them at compile time, so a scene
-compiles and runs only what it has (STYLE.md: "model only what a scene needs")."""
+Absent parts are empty tuples / None with count 0, and kernels branch on them at compile time, so a scene
+compiles and runs only what it has. Nothing here changes during a step: dynamic data is in State, and
+every scratch field (element caches, stage states, Krylov vectors) belongs to the solver that writes it."""
 
 import numpy as np
 import taichi as ti
 
 from .collision.spheres import ContactSpheres
-from .forces.springs import Springs
 from .runtime import data_oriented, np_float, serial_loops
 from .state import ALIVE_FOREVER, State
+from .terms import Springs
 
 
 @data_oriented
@@ -30,18 +31,18 @@ class Model:
         settings,
         contacts=None,
         springs=None,
+        element_terms=None,
         triangles=None,
     ):
         n = len(x)
         self.particle_count = n
-        self.terms = list(terms)
+        self.settings = dict(settings)  # a copy: the builder's record is not written to
         self.colliders = list(colliders)
         self.emitters = list(emitters)
         self.emitter_count = len(self.emitters)
         self.collider_count = len(self.colliders)
         self.trail_length = trail_length
         self.seed = seed
-        self.settings = settings
         self._x0 = np.asarray(x, dtype=np.float64)
         self._v0 = np.asarray(v, dtype=np.float64)
         masses = np.asarray(mass, dtype=np.float64)
@@ -76,21 +77,25 @@ class Model:
             self.contacts = ContactSpheres(model=self, **contacts)
             self.rest_speed = self.contacts.rest_speed
             self.settings["sphere_contacts"] = self.contacts.settings()
-        # Springs (cloth): a force term coupling particles, so force evaluation gathers over fields.
+        # Springs (cloth) are one element term among others (membrane, bending, aerodynamics).
         self.springs = None
-        self.spring_count = 0
         if springs is not None and len(springs["pairs"]):
             self.springs = Springs(n, **springs)
-            self.spring_count = self.springs.count
-            self.settings["springs"] = self.springs.settings()
-        self.coupled = self.springs is not None  # integrators branch on it at compile time
-        self._force_fields = None
+        self.spring_count = 0 if self.springs is None else self.springs.count
+        elements = ([self.springs] if self.springs is not None else []) + list(element_terms or ())
+        # Pointwise terms first: the order in which solvers sum forces (and the settings list).
+        self.point_terms = tuple(terms)
+        self.element_terms = tuple(elements)
+        self.terms = self.point_terms + self.element_terms
+        self.settings["forces"] = [t.settings() for t in self.terms]
+        self.coupled = bool(self.element_terms)  # integrators branch on it at compile time
+        self._probe = None
         # Cloth triangles (F,3) over particle indices, for export and rendering only; None without cloth.
         self.triangles = None if triangles is None or len(triangles) == 0 else np.asarray(triangles)
         self.triangle_count = 0 if self.triangles is None else len(self.triangles)
         # Small scenes are launch-bound on the CPU: their particle loops run serially (compile-time).
         # A particle's work grows with its springs, which count towards the size.
-        work = n + (self.springs.entry_count if self.springs is not None else 0)
+        work = n + sum(t.entry_count for t in self.element_terms)
         self.serial = serial_loops(work)
 
     def state(self) -> State:
@@ -163,7 +168,7 @@ class Model:
         """Sum of the pointwise force terms on particle i at (x, v, t)."""
         m = self.mass(i)
         f = ti.Vector.zero(float, 3)
-        for term in ti.static(self.terms):
+        for term in ti.static(self.point_terms):
             f += term.force(i, m, x, v, t)
         return f
 
@@ -173,10 +178,11 @@ class Model:
         m = self.mass(i)
         kx = ti.Matrix.zero(float, 3, 3)
         kv = ti.Matrix.zero(float, 3, 3)
-        for term in ti.static(self.terms):
-            jx, jv = term.jacobian(i, m, x, v, t)
-            kx += jx
-            kv += jv
+        for term in ti.static(self.point_terms):
+            if ti.static(term.has_jacobian):
+                jx, jv = term.jacobian(i, m, x, v, t)
+                kx += jx
+                kv += jv
         return kx, kv
 
     @ti.func
@@ -184,41 +190,45 @@ class Model:
         return self.force(i, x, v, t) * self.inv_mass(i)
 
     @ti.func
-    def spring_pass(self, xf: ti.template(), vf: ti.template()):
-        """With springs: evaluate every spring at the positions xf and velocities vf (fields), a loop
-        that must come first in the kernel; without springs nothing is compiled."""
-        if ti.static(self.coupled):
-            self.springs.evaluate(xf, vf, self.serial)
+    def element_pass(self, caches: ti.template(), xf: ti.template(), vf: ti.template(), t):
+        """Evaluate every element term at the positions xf and velocities vf (fields) into the solver's
+        caches: top-level loops that must come first in the kernel; nothing without element terms."""
+        for k in ti.static(range(len(self.element_terms))):
+            self.element_terms[k].evaluate(caches[k], xf, vf, t, self.serial)
 
     @ti.func
-    def accel_total(self, i, x, v, t):
-        """Acceleration of particle i at (x, v, t): the pointwise terms plus, after spring_pass, its
-        springs' forces."""
+    def accel_total(self, caches: ti.template(), i, x, v, t):
+        """Acceleration of particle i at (x, v, t): the pointwise terms plus, after element_pass, the
+        forces of its elements."""
         f = self.force(i, x, v, t)
-        if ti.static(self.coupled):
-            f += self.springs.force(i)
+        for k in ti.static(range(len(self.element_terms))):
+            f += self.element_terms[k].gather(caches[k], i)
         return f * self.inv_mass(i)
+
+    def make_caches(self, implicit: bool = False) -> tuple:
+        """Scratch for one solver: a cache per element term (in element_terms order)."""
+        return tuple(t.make_cache(self.particle_count, implicit) for t in self.element_terms)
 
     def forces(self, x, v, t: float = 0.0) -> np.ndarray:
         """(N,3) total force [N] on every particle at positions x (N,3) [m] and velocities v (N,3) [m/s]
-        (pointwise terms and springs; for tests and reports)."""
-        n = self.particle_count
-        if self._force_fields is None:  # once: new fields would recompile the kernel on every call
-            self._force_fields = tuple(ti.Vector.field(3, float, n) for _ in range(3))
-        xf, vf, ff = self._force_fields
-        xf.from_numpy(np.asarray(x, dtype=np_float()))
-        vf.from_numpy(np.asarray(v, dtype=np_float()))
-        self._forces(xf, vf, ff, t)
-        return ff.to_numpy().astype(np.float64)
+        (every term; for tests and reports: a probe with its own caches is made on the first call)."""
+        if self._probe is None:
+            self._probe = _ForceProbe(self)
+        return self._probe.forces(x, v, t)
 
-    @ti.kernel
-    def _forces(self, xf: ti.template(), vf: ti.template(), ff: ti.template(), t: float):
-        self.spring_pass(xf, vf)
-        for i in range(self.particle_count):
-            f = self.force(i, xf[i], vf[i], t)
-            if ti.static(self.coupled):
-                f += self.springs.force(i)
-            ff[i] = f
+    def energy(self, x, v=None) -> dict:
+        """Energies [J] at positions x (N,3) and velocities v (N,3): kinetic (if v is given), and each
+        term's that has one (gravity's potential, springs', membrane's, bending's), keyed by type."""
+        x = np.asarray(x, dtype=np.float64)
+        m = self.particle_masses()
+        out = {}
+        if v is not None:
+            out["kinetic"] = float(0.5 * np.sum(m[:, None] * np.asarray(v, dtype=np.float64) ** 2))
+        for term in self.terms:
+            if term.has_energy:
+                key = term.settings()["type"]
+                out[key] = out.get(key, 0.0) + term.energy(x, m)
+        return out
 
     def particle_masses(self) -> np.ndarray:
         """(N,) masses [kg] (0 for pinned particles)."""
@@ -232,12 +242,35 @@ class Model:
             return np.full(len(idx), self.max_radius)
         return self.particle_radius.to_numpy()[idx]
 
-    def particle_colors(self, idx: np.ndarray, age: np.ndarray, life: np.ndarray) -> np.ndarray:
-        """(N,3) colours in [0,1]: each emitter's ramp over normalised age; grey for other particles."""
-        color = np.full((len(idx), 3), 0.8)
-        for e in self.emitters:
-            sel = (idx >= e.start) & (idx < e.start + e.capacity)
-            if sel.any():
-                s = np.clip(age[sel] / life[sel], 0.0, 1.0)[:, None]
-                color[sel] = (1 - s) * np.asarray(e.s.color_start) + s * np.asarray(e.s.color_end)
-        return color
+
+@data_oriented
+class _ForceProbe:
+    """Total forces from NumPy for tests and reports, with caches of its own (never a solver's)."""
+
+    def __init__(self, model):
+        n = model.particle_count
+        self.model = model
+        self.caches = model.make_caches()
+        self.fields = tuple(ti.Vector.field(3, float, n) for _ in range(3))
+
+    def forces(self, x, v, t: float) -> np.ndarray:
+        xf, vf, ff = self.fields
+        xf.from_numpy(np.asarray(x, dtype=np_float()))
+        vf.from_numpy(np.asarray(v, dtype=np_float()))
+        self._forces(self.model, xf, vf, ff, t)
+        return ff.to_numpy().astype(np.float64)
+
+    @ti.kernel
+    def _forces(
+        self, model: ti.template(), xf: ti.template(), vf: ti.template(), ff: ti.template(), t: float
+    ):
+        model.element_pass(self.caches, xf, vf, t)
+        for i in range(model.particle_count):
+            ff[i] = model.force(i, xf[i], vf[i], t) + self.gathered(model, i)
+
+    @ti.func
+    def gathered(self, model: ti.template(), i):
+        f = ti.Vector.zero(float, 3)
+        for k in ti.static(range(len(model.element_terms))):
+            f += model.element_terms[k].gather(self.caches[k], i)
+        return f

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import taichi as ti
 from taichi.lang import impl
 
@@ -67,7 +69,7 @@ def backend_name() -> str:
 
 
 # Below this many elements a CPU loop runs on one thread: a parallel launch costs ~200 us more than a
-# serial one here (PLATFORM.md), more than small loops gain from the second core (measured in
+# serial one on a 2-core CPU, more than small loops gain from the second core (measured in
 # benchmarks/particles.py, "serial threshold").
 CPU_SERIAL_BELOW = 20_000
 
@@ -89,6 +91,28 @@ def np_float():
     return np.float64 if float_dtype() == ti.f64 else np.float32
 
 
+# The fast data_oriented below relies on two private names of Taichi's kernel_impl that are known to
+# behave as it expects in these versions; any other version (or TAICHI_ANIM_PLAIN_DATA_ORIENTED=1) gets
+# Taichi's own decorator, which is slower per launch but public.
+FAST_DATA_ORIENTED_VERSIONS = {(1, 7, 4)}
+
+
+def fast_data_oriented_available() -> bool:
+    """Whether `data_oriented` takes the descriptor path (a known Taichi version, not disabled)."""
+    if os.environ.get("TAICHI_ANIM_PLAIN_DATA_ORIENTED", "") not in ("", "0"):
+        return False
+    if tuple(ti.__version__) not in FAST_DATA_ORIENTED_VERSIONS:
+        return False
+    try:
+        from taichi.lang.kernel_impl import _BoundedDifferentiableMethod  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+FAST_DATA_ORIENTED = fast_data_oriented_available()
+
+
 class _BoundKernel:
     """A class attribute that binds a Taichi kernel to the instance it is read from (what Taichi's own
     `__getattribute__` does for data-oriented classes, as a descriptor instead)."""
@@ -105,15 +129,18 @@ class _BoundKernel:
 
 
 def data_oriented(cls):
-    """`ti.data_oriented` with native attribute access.
+    """`ti.data_oriented` with native attribute access (on the Taichi versions it is verified for).
 
     Taichi's decorator replaces `__getattribute__` on the class with a Python function (to bind kernels),
     so every attribute read, and every failed `isinstance` on an instance (it reads `__class__`), costs a
     Python call: a kernel launch with the model, the state and the solver as template arguments paid
-    ~20 of them, tens of microseconds per launch (measured, issue 4). Here the class keeps Python's own
-    attribute lookup and each kernel becomes a descriptor that binds it the way Taichi does.
+    ~20 of them, tens of microseconds per launch (benchmarks/launch_overhead.py measures both paths).
+    Here the class keeps Python's own attribute lookup and each kernel becomes a descriptor that binds
+    it the way Taichi does. Elsewhere it is plain `ti.data_oriented`.
     """
     cls = ti.data_oriented(cls)
+    if not FAST_DATA_ORIENTED:
+        return cls
     if "__getattribute__" in vars(cls):
         del cls.__getattribute__
     for name, attr in list(vars(cls).items()):

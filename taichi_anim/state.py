@@ -85,7 +85,7 @@ class State:
         else:
             age = np.full(len(idx), self.time)
             life = np.full(len(idx), np.inf)
-        color = self.model.particle_colors(idx, age, life)
+        color = particle_colors(self.model.emitters, idx, age, life)
         trails = None
         if self.trail_length:
             tr = self.trail.to_numpy()[idx]
@@ -98,3 +98,15 @@ class State:
         ti.loop_config(serialize=self.model.serial)  # same launch-cost choice as the integrators
         for i in range(self.particle_x.shape[0]):
             self.trail[i, head] = self.particle_x[i]
+
+
+def particle_colors(emitters, idx: np.ndarray, age: np.ndarray, life: np.ndarray) -> np.ndarray:
+    """(N,3) colours in [0,1] of particles idx: each emitter's ramp over normalised age; grey for other
+    particles (an output concern: the ramps are emitter options, read only here)."""
+    color = np.full((len(idx), 3), 0.8)
+    for e in emitters:
+        sel = (idx >= e.start) & (idx < e.start + e.capacity)
+        if sel.any():
+            s = np.clip(age[sel] / life[sel], 0.0, 1.0)[:, None]
+            color[sel] = (1 - s) * np.asarray(e.s.color_start) + s * np.asarray(e.s.color_end)
+    return color

@@ -99,6 +99,43 @@ def test_cloth_demo_runs_with_an_explicit_integrator():
     assert np.all(np.isfinite(scene.cloth_mesh()[0]))
 
 
+def test_cloth_demo_membrane_swings_like_the_springs():
+    """The material switch: the same sheet as a continuum membrane (areal E = the stretch springs' k)
+    falls and swings from its pins, stretching its edges no more than the springs allow."""
+    ta.init("cpu")
+    scene = make_scene("cloth", resolution=16, material="membrane")
+    kinds = [t.settings()["type"] for t in scene.model.terms]
+    assert "membrane_stvk" in kinds and "bending_dihedral" in kinds and "springs" not in kinds
+    x0, triangles, _ = scene.cloth_mesh()
+    pinned = np.array(scene.options["pinned"])
+    rest = _edge_lengths(x0, triangles)
+    for _ in range(20):
+        scene.advance_frame()
+    x, _, _ = scene.cloth_mesh()
+    assert np.array_equal(x[pinned], x0[pinned])
+    assert x[:, 1].mean() < x0[:, 1].mean() - 0.1
+    assert np.all(_edge_lengths(x, triangles) < 1.5 * rest)
+    assert scene.integrator.last_solve.converged
+
+
+def test_flag_flies_downwind_from_its_pole():
+    """The flag demo: the left edge stays on the pole; the wind carries the free edge downwind (+x)
+    and holds the flag up against gravity (a flag hanging limp would have its free end at x ~ 0)."""
+    ta.init("cpu")
+    scene = make_scene("flag", resolution=16)
+    x0, triangles, _ = scene.cloth_mesh()
+    pinned = np.array(scene.options["pinned"])
+    rest = _edge_lengths(x0, triangles)
+    for _ in range(60):  # 1 s
+        scene.advance_frame()
+    x, _, _ = scene.cloth_mesh()
+    assert np.array_equal(x[pinned], x0[pinned])
+    free_edge = x0[:, 0] > x0[:, 0].max() - 1e-9
+    assert x[free_edge, 0].mean() > 0.6 * scene.options["width"]  # blown out, not hanging
+    assert np.all(_edge_lengths(x, triangles) < 1.2 * rest)  # the membrane holds the wind load
+    assert np.all(np.isfinite(x))
+
+
 def test_drape_demo_rests_on_the_ball_and_the_floor(tmp_path):
     ta.init("cpu")
     scene = make_scene("drape", resolution=24)

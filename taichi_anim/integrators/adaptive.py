@@ -10,7 +10,7 @@ import taichi as ti
 from .. import validate
 from ..errors import DivergenceError
 from ..runtime import data_oriented
-from .base import Integrator, Scratch
+from .base import Integrator, scratch_pairs
 
 
 @data_oriented
@@ -38,7 +38,7 @@ class IntegratorAdaptive(Integrator):
         self.tol = validate.positive("tol", tol)
         self.h = None if h_init is None else validate.positive("h_init", h_init)
         self.h_min = validate.positive("h_min", h_min)
-        self.scratch = Scratch(3)
+        self.xs = self.vs = None
         self.diff = ti.field(float, ())
         self.accepted = 0
         self.rejected = 0
@@ -52,9 +52,12 @@ class IntegratorAdaptive(Integrator):
             "rejected": self.rejected,
         }
 
-    def _step(self, model, state, dt: float) -> None:
-        self.scratch.ensure(model.particle_count)
-        xs, vs = self.scratch.x, self.scratch.v
+    def _allocate(self, model) -> None:
+        self.base.bind(model)
+        self.xs, self.vs = scratch_pairs(model.particle_count, 3)
+
+    def advance_step(self, model, state, dt: float) -> None:
+        xs, vs = self.xs, self.vs
         ta, step = state.time, state.step_count + 1
         w, big, half = 0, 1, 2
         self._copy(model, state, state.particle_x, state.particle_v, xs[w], vs[w], ta)

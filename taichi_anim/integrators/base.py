@@ -1,17 +1,23 @@
-"""Integrator base: one `step(model, state, dt)` for every method — emission, the method's own update,
-collisions and the divergence watch fused into its last kernel, trails, time.
+"""Integrator base: a time-integration method supplies only its update; the world step around it
+(emission, contacts, trails, time, divergence) is the Stepper's (stepper.py).
 
-Every method implements `advance(model, state, xi, vi, xo, vo, ta, t, h, step, finish)`: one step of
-size h of x' = v, v' = M^-1 f(x, v, t) from fields (xi, vi) to (xo, vo) (they may alias). With
-finish=True the last kernel also applies collisions against the step's start point and counts
-non-finite results; adaptive wrappers call it with finish=False on scratch fields.
+A method is bound to a model once (`bind`, which allocates its scratch: element-term caches, stage
+fields, linear-solver vectors) and then advances fields (xi, vi) to (xo, vo) by h with
+`advance(model, state, xi, vi, xo, vo, ta, t, h, step, finish)`, as:
+  prepare(...)        Python-side launches the update needs first (Runge-Kutta stages, a linear solve)
+  final_pass(...)     @ti.func: top-level loops that must run before the particle loop (element passes)
+  update(...)         @ti.func: (x1, v1) of particle i
+One kernel, `_final`, runs the last two for every method, and with finish=True ends each particle with
+the Stepper's finish tail (colliders, divergence watch, slot release); adaptive wrappers call it with
+finish=False on scratch fields and finish once at the end of the step (`_finish_all`).
 """
 
 import taichi as ti
 
 from .. import validate
-from ..collision import CollisionMode, collide
+from ..collision import CollisionMode
 from ..runtime import data_oriented
+from ..stepper import Stepper, finish_particle
 
 
 def _mode(value) -> CollisionMode:
@@ -29,6 +35,7 @@ class Integrator:
     name = "base"
     order = 0
     stages = 1  # force evaluations per advance
+    implicit = False  # whether element caches hold linearisations (implicit solves)
 
     def __init__(
         self, *, collision_mode: CollisionMode | str = CollisionMode.PROJECTION, check_every: int = 1
@@ -36,78 +43,79 @@ class Integrator:
         self.collision_mode = _mode(collision_mode)
         self.check_every = validate.count("check_every", check_every, 1)
         self.evaluations = 0  # force evaluations per particle so far (the cost figure in benchmarks)
+        self.model = None
+        self.caches = ()
+        self._stepper = None
 
     def settings(self) -> dict:
         return {"integrator": self.name, "order": self.order, "collision_mode": self.collision_mode.value}
 
-    def step(self, model, state, dt: float) -> None:
-        """Advance `state` by dt [s] in place."""
-        dt = validate.positive("dt", dt)
-        if model.emitter_count:
-            model.emit(state, dt)
-        contacts = model.contacts
-        if contacts is None:
-            self._step(model, state, dt)
-        else:
-            # Sphere contacts after every (sub)step; continuous contacts choose substeps from v_max.
-            n = contacts.substeps(state, dt)
-            h = dt / n
-            t0 = state.time
-            for k in range(n):
-                state.time = t0 + k * h
-                self._step(model, state, h)
-                contacts.solve(state, h, state.step_count + 1)
-            state.time = t0
-        if state.trail_length:
-            state.record_trails(state.trail_head)
-            state.trail_head = (state.trail_head + 1) % state.trail_length
-        state.time += dt
-        state.step_count += 1
-        if state.step_count % self.check_every == 0:
-            state.check_finite()
+    def bind(self, model) -> None:
+        """Allocate this method's scratch for `model` (called by the Stepper, once per model)."""
+        if model is self.model:
+            return
+        self.model = model
+        self.caches = model.make_caches(implicit=self.implicit)
+        self._allocate(model)
 
-    def _step(self, model, state, dt: float) -> None:
+    def _allocate(self, model) -> None:
+        """Subclasses allocate their own fields here."""
+
+    def step(self, model, state, dt: float) -> None:
+        """Advance `state` of `model` by dt [s] in place (a Stepper bound to the model, made once)."""
+        if self._stepper is None or self._stepper.model is not model:
+            self._stepper = Stepper(model, self)
+        self._stepper.step(state, dt)
+
+    def advance_step(self, model, state, dt: float) -> None:
+        """One step of the state by dt, finished (adaptive methods take several internal steps)."""
         x, v = state.particle_x, state.particle_v
         self.advance(model, state, x, v, x, v, state.time, state.time, dt, state.step_count + 1, True)
 
     def advance(self, model, state, xi, vi, xo, vo, ta, t, h, step, finish) -> None:
-        raise NotImplementedError
+        self.prepare(model, state, xi, vi, ta, t, h)
+        self._final(model, state, xi, vi, xo, vo, ta, t, h, step, finish)
+        self.evaluations += self.stages
+
+    def prepare(self, model, state, xi, vi, ta, t, h) -> None:
+        """Launches that must precede the final kernel (none for one-stage explicit methods)."""
 
     @ti.func
-    def _write(
+    def final_pass(self, model: ti.template(), xi: ti.template(), vi: ti.template(), t, h):
+        """Element passes the update reads (default: forces at the step's start)."""
+        model.element_pass(self.caches, xi, vi, t)
+
+    @ti.kernel
+    def _final(
         self,
         model: ti.template(),
         state: ti.template(),
+        xi: ti.template(),
+        vi: ti.template(),
         xo: ti.template(),
         vo: ti.template(),
-        i,
-        x0,
-        v0,
-        x1,
-        v1,
-        h,
-        step,
+        ta: float,
+        t: float,
+        h: float,
+        step: ti.i32,
         finish: ti.template(),
     ):
-        if ti.static(finish):
-            self._finish(model, state, i, x0, v0, x1, v1, h, step)
-        else:
-            xo[i] = x1
-            vo[i] = v1
-
-    @ti.func
-    def _finish(self, model: ti.template(), state: ti.template(), i, x0, v0, x1, v1, h, step):
-        x, v = x1, v1
-        if ti.static(model.collider_count > 0):
-            x, v = collide(
-                model.colliders, self.collision_mode, x0, v0, x1, v1, h, model.radius(i), model.rest_speed
-            )
-        total = x.sum() + v.sum()  # NaN or inf in any component makes the sum NaN or inf
-        if ti.math.isnan(total) or ti.math.isinf(total):
-            ti.atomic_add(state.nonfinite_count[None], 1)
-            ti.atomic_min(state.nonfinite_step[None], step)
-        state.particle_x[i] = x
-        state.particle_v[i] = v
+        self.final_pass(model, xi, vi, t, h)  # reads the whole start state before anything is overwritten
+        ti.loop_config(serialize=model.serial)
+        for i in range(model.particle_count):
+            if model.alive(state, i, ta):
+                x0 = xi[i]
+                v0 = vi[i]
+                x1, v1 = self.update(model, i, x0, v0, t, h)
+                if ti.static(finish):
+                    finish_particle(model, state, self.collision_mode, i, x0, v0, x1, v1, h, step)
+                    if ti.static(state.has_lifetimes):
+                        model.release_if_dead(state, i, ta + h)  # dies within this step
+                else:
+                    xo[i] = x1
+                    vo[i] = v1
+            elif ti.static(finish and state.has_lifetimes):
+                model.release(state, i)
 
     @ti.kernel
     def _finish_all(
@@ -123,9 +131,8 @@ class Integrator:
         ti.loop_config(serialize=model.serial)
         for i in range(model.particle_count):
             if model.alive(state, i, ta):
-                self._finish(
-                    model, state, i, state.particle_x[i], state.particle_v[i], x1f[i], v1f[i], h, step
-                )
+                x0, v0 = state.particle_x[i], state.particle_v[i]
+                finish_particle(model, state, self.collision_mode, i, x0, v0, x1f[i], v1f[i], h, step)
                 if ti.static(state.has_lifetimes):
                     model.release_if_dead(state, i, ta + h)
             elif ti.static(state.has_lifetimes):
@@ -149,17 +156,9 @@ class Integrator:
                 vd[i] = vs[i]
 
 
-class Scratch:
-    """Pairs of (x, v) fields sized to a model, allocated on first use."""
-
-    def __init__(self, pairs: int):
-        self.pairs = pairs
-        self.count = -1
-        self.x: list = []
-        self.v: list = []
-
-    def ensure(self, n: int) -> None:
-        if n != self.count:
-            self.x = [ti.Vector.field(3, float, n) for _ in range(self.pairs)]
-            self.v = [ti.Vector.field(3, float, n) for _ in range(self.pairs)]
-            self.count = n
+def scratch_pairs(n: int, pairs: int) -> tuple[list, list]:
+    """`pairs` (x, v) field pairs of n particles (adaptive methods' work and candidate states)."""
+    return (
+        [ti.Vector.field(3, float, n) for _ in range(pairs)],
+        [ti.Vector.field(3, float, n) for _ in range(pairs)],
+    )

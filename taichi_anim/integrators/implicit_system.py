@@ -2,9 +2,10 @@
 "Large Steps in Cloth Simulation", 1998, eq. 6 and 15):
     A dv = b,   A = M - h df/dv - h^2 df/dx,   b = h (f0 + h df/dx v0)
 A is applied matrix-free: (A p)_i = D_i p_i + sum_s S_s (p_i - p_j), where D_i = m_i I - h K_v - h^2 K_x
-holds the pointwise terms' 3x3 Jacobians and S_s = -(h df/dv + h^2 df/dx) of spring s
-(forces/springs.py), positive semi-definite after the compression clamp, so A is symmetric positive
-definite for m > 0. Pinned particles (inverse mass 0) are filtered: their rows of A p, b and of the
+holds the pointwise terms' 3x3 Jacobians and each element term adds its S = -(h df/dv + h^2 df/dx)
+(terms/base.py), which every term keeps symmetric positive semi-definite (springs by the compression
+clamp, the membrane by clamping compressive stress, bending by its Gauss-Newton part), so A is symmetric
+positive definite for m > 0. Pinned particles (inverse mass 0) are filtered: their rows of A p, b and of the
 preconditioner are 0, so dv stays 0 there and they keep their prescribed velocity.
 """
 
@@ -18,14 +19,15 @@ from ..runtime import data_oriented, np_float
 class ImplicitSystem:
     """Fields: rhs b (N,3), solution dv (N,3), block D_i (N,3,3), inverse diagonal blocks (N,3,3)."""
 
-    def __init__(self, model):
+    def __init__(self, model, caches):
         n = model.particle_count
         self.model = model
+        self.caches = caches  # the integrator's element caches, holding the linearisation
         self.size = n
-        model.springs.ensure_implicit()
         # Without pointwise Jacobians (gravity only) D_i = m_i I: no 3x3 block to store or read.
-        self.pointwise = any(getattr(t, "has_jacobian", True) for t in model.terms)
+        self.pointwise = any(t.has_jacobian for t in model.point_terms)
         self.mass_norm = float(np.linalg.norm(model.particle_masses()))  # the solvers' absolute floor
+        self._fields = (ti.Vector.field(3, float, n), ti.Vector.field(3, float, n))  # NumPy access
         self.rhs = ti.Vector.field(3, float, n)
         self.solution = ti.Vector.field(3, float, n)
         self.block = ti.Matrix.field(3, 3, float, n) if self.pointwise else None
@@ -48,7 +50,9 @@ class ImplicitSystem:
         d = self.model.mass(i) * pf[i]
         if ti.static(self.pointwise):
             d = self.block[i] @ pf[i]
-        return self.filter(i, d + self.model.springs.apply(i, pf))
+        for k in ti.static(range(len(self.model.element_terms))):
+            d += self.model.element_terms[k].apply(self.caches[k], i, pf)
+        return self.filter(i, d)
 
     @ti.func
     def precondition(self, i, r):
@@ -56,23 +60,31 @@ class ImplicitSystem:
         return self.inv_block[i] @ r
 
     @ti.func
-    def spring_pass(self, xf: ti.template(), vf: ti.template(), h):
-        """Evaluate every spring's force and blocks (a top-level loop: first in the kernel)."""
-        self.model.springs.evaluate_implicit(xf, vf, h, self.model.serial)
+    def linearize(self, xf: ti.template(), vf: ti.template(), t, h):
+        """Every element term's forces and blocks (top-level loops: first in the kernel)."""
+        for k in ti.static(range(len(self.model.element_terms))):
+            self.model.element_terms[k].linearize(self.caches[k], xf, vf, t, h, self.model.serial)
 
     @ti.func
     def assemble_row(self, i, xf: ti.template(), vf: ti.template(), t, h):
-        """After spring_pass: fill b_i, D_i and the inverse diagonal block of row i."""
+        """After linearize: fill b_i, D_i and the inverse diagonal block of row i."""
         x = xf[i]
         v = vf[i]
-        f, kxv, spring_diag = self.model.springs.assemble(i)
+        f = ti.Vector.zero(float, 3)
+        kxv = ti.Vector.zero(float, 3)
+        element_diag = ti.Matrix.zero(float, 3, 3)
+        for k in ti.static(range(len(self.model.element_terms))):
+            fk, kxvk, dk = self.model.element_terms[k].gather_linear(self.caches[k], i)
+            f += fk
+            kxv += kxvk
+            element_diag += dk
         fp = self.model.force(i, x, v, t)
         kx, kv = self.model.force_jacobian(i, x, v, t)
         d = self.model.mass(i) * ti.Matrix.identity(float, 3) - h * kv - h * h * kx
         b = h * (f + fp + h * (kxv + kx @ v))
         inv = ti.Matrix.zero(float, 3, 3)
         if self.free(i):
-            inv = (d + spring_diag).inverse()
+            inv = (d + element_diag).inverse()
         else:
             b = ti.Vector.zero(float, 3)
             self.solution[i] = ti.Vector.zero(float, 3)
@@ -98,14 +110,11 @@ class ImplicitSystem:
         return qf.to_numpy().astype(np.float64)
 
     def _scratch(self):
-        # Allocated once: new fields would be new template arguments, and a recompile per call.
-        if not hasattr(self, "_fields"):
-            self._fields = (ti.Vector.field(3, float, self.size), ti.Vector.field(3, float, self.size))
         return self._fields
 
     @ti.kernel
     def _assemble_all(self, xf: ti.template(), vf: ti.template(), t: float, h: float):
-        self.spring_pass(xf, vf, h)
+        self.linearize(xf, vf, t, h)
         for i in range(self.size):
             self.assemble_row(i, xf, vf, t, h)
 

@@ -12,7 +12,7 @@ import math
 from .. import validate
 from ..errors import DivergenceError
 from ..runtime import data_oriented
-from .base import Scratch
+from .base import scratch_pairs
 from .runge_kutta import IntegratorRungeKutta, Tableau
 
 DOPRI5 = Tableau(
@@ -56,7 +56,7 @@ class IntegratorRK45(IntegratorRungeKutta):
         self.atol = validate.positive("atol", atol)
         self.h = None if h_init is None else validate.positive("h_init", h_init)
         self.h_min = validate.positive("h_min", h_min)
-        self.scratch = Scratch(2)
+        self.xs = self.vs = None
         self.accepted = 0
         self.rejected = 0
 
@@ -70,12 +70,16 @@ class IntegratorRK45(IntegratorRungeKutta):
             "rejected": self.rejected,
         }
 
-    def _step(self, model, state, dt: float) -> None:
+    def _allocate(self, model) -> None:
+        super()._allocate(model)
+        if self.adaptive:
+            self.xs, self.vs = scratch_pairs(model.particle_count, 2)
+
+    def advance_step(self, model, state, dt: float) -> None:
         if not self.adaptive:
-            super()._step(model, state, dt)
+            super().advance_step(model, state, dt)
             return
-        self.scratch.ensure(model.particle_count)
-        xs, vs = self.scratch.x, self.scratch.v
+        xs, vs = self.xs, self.vs
         ta, step = state.time, state.step_count + 1
         self._copy(model, state, state.particle_x, state.particle_v, xs[0], vs[0], ta)
         # Fixed roles (work = xs[0], candidate = xs[1]) and a copy on accept: swapping the fields instead

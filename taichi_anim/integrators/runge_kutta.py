@@ -38,31 +38,26 @@ class IntegratorRungeKutta(Integrator):
         self.order = tableau.order
         self.stages = len(tableau.b)
         self._embedded = tableau.b_low is not None
-        self._k_count = -1
         self.kx = None  # stage derivatives, (stages-1, N) each: the last stage is never stored
         self.kv = None
+        self.sx = self.sv = None
         self.error = ti.field(float, ())  # max over particles of the scaled embedded error
         self.rtol = 0.0
         self.atol = 1.0
 
-    def _ensure(self, n: int, coupled: bool) -> None:
-        if n != self._k_count:
-            if self.stages > 1:
-                self.kx = ti.Vector.field(3, float, (self.stages - 1, n))
-                self.kv = ti.Vector.field(3, float, (self.stages - 1, n))
-            self._k_count = n
-            self.sx = self.sv = None
-        if coupled and self.sx is None and self.stages > 1:
-            # Springs read every particle's stage state, so stages s >= 1 live in fields sx[s], sv[s].
-            self.sx = [None] + [ti.Vector.field(3, float, n) for _ in range(1, self.stages)]
-            self.sv = [None] + [ti.Vector.field(3, float, n) for _ in range(1, self.stages)]
+    def _allocate(self, model) -> None:
+        n = model.particle_count
+        if self.stages > 1:
+            self.kx = ti.Vector.field(3, float, (self.stages - 1, n))
+            self.kv = ti.Vector.field(3, float, (self.stages - 1, n))
+            if model.coupled:
+                # Element terms read every particle's stage state, so stages s >= 1 live in fields.
+                self.sx = [None] + [ti.Vector.field(3, float, n) for _ in range(1, self.stages)]
+                self.sv = [None] + [ti.Vector.field(3, float, n) for _ in range(1, self.stages)]
 
-    def advance(self, model, state, xi, vi, xo, vo, ta, t, h, step, finish) -> None:
-        self._ensure(model.particle_count, model.coupled)
+    def prepare(self, model, state, xi, vi, ta, t, h) -> None:
         for s in range(self.stages - 1):
             self._stage(model, state, xi, vi, s, ta, t, h)
-        self._last(model, state, xi, vi, xo, vo, ta, t, h, step, finish)
-        self.evaluations += self.stages
 
     def _stage_fields(self, xi, vi, s: int):
         """Fields holding stage s's state (coupled models): the input for stage 0, else sx[s]."""
@@ -93,14 +88,14 @@ class IntegratorRungeKutta(Integrator):
         ts = t + self.tableau.c[s] * h
         if ti.static(model.coupled):
             fx, fv = ti.static(self._stage_fields(xi, vi, s))
-            model.spring_pass(fx, fv)
+            model.element_pass(self.caches, fx, fv, ts)
         ti.loop_config(serialize=model.serial)
         for i in range(model.particle_count):
             if model.alive(state, i, ta):
                 if ti.static(model.coupled):
                     fx, fv = ti.static(self._stage_fields(xi, vi, s))
                     self.kx[s, i] = fv[i]
-                    self.kv[s, i] = model.accel_total(i, fx[i], fv[i], ts)
+                    self.kv[s, i] = model.accel_total(self.caches, i, fx[i], fv[i], ts)
                     # The next stage's state needs only this particle's own stage derivatives.
                     xn, vn = self._stage_state(i, xi, vi, s + 1, h)
                     self.sx[s + 1][i] = xn
@@ -110,66 +105,59 @@ class IntegratorRungeKutta(Integrator):
                     self.kx[s, i] = v
                     self.kv[s, i] = model.accel(i, x, v, ts)
 
-    @ti.kernel
-    def _last(
-        self,
-        model: ti.template(),
-        state: ti.template(),
-        xi: ti.template(),
-        vi: ti.template(),
-        xo: ti.template(),
-        vo: ti.template(),
-        ta: float,
-        t: float,
-        h: float,
-        step: ti.i32,
-        finish: ti.template(),
-    ):
+    @ti.func
+    def final_pass(self, model: ti.template(), xi: ti.template(), vi: ti.template(), t, h):
         last = ti.static(self.stages - 1)
-        tl = t + self.tableau.c[last] * h
         if ti.static(model.coupled):
             fx, fv = ti.static(self._stage_fields(xi, vi, last))
-            model.spring_pass(fx, fv)  # done before the loop below overwrites the input in place
-        ti.loop_config(serialize=model.serial)
-        for i in range(model.particle_count):
-            if model.alive(state, i, ta):
-                x0 = xi[i]
-                v0 = vi[i]
-                kx_last = v0
-                kv_last = v0
-                if ti.static(model.coupled):
-                    fx, fv = ti.static(self._stage_fields(xi, vi, last))
-                    kx_last = fv[i]
-                    kv_last = model.accel_total(i, fx[i], fv[i], tl)
-                else:
-                    xs, vs = self._stage_state(i, xi, vi, last, h)
-                    kx_last = vs
-                    kv_last = model.accel(i, xs, vs, tl)
-                dx = self.tableau.b[last] * kx_last
-                dv = self.tableau.b[last] * kv_last
-                for j in ti.static(range(last)):
-                    if ti.static(self.tableau.b[j] != 0.0):
-                        dx += self.tableau.b[j] * self.kx[j, i]
-                        dv += self.tableau.b[j] * self.kv[j, i]
-                x1 = x0 + h * dx
-                v1 = v0 + h * dv
-                if ti.static(self._embedded):
-                    ex = (self.tableau.b[last] - self.tableau.b_low[last]) * kx_last
-                    ev = (self.tableau.b[last] - self.tableau.b_low[last]) * kv_last
-                    for j in ti.static(range(last)):
-                        if ti.static(self.tableau.b[j] != self.tableau.b_low[j]):
-                            ex += (self.tableau.b[j] - self.tableau.b_low[j]) * self.kx[j, i]
-                            ev += (self.tableau.b[j] - self.tableau.b_low[j]) * self.kv[j, i]
-                    # Mixed absolute/relative scale per component (Hairer et al., eq. II.4.10).
-                    sx = self.atol + self.rtol * ti.max(ti.abs(x0), ti.abs(x1))
-                    sv = self.atol + self.rtol * ti.max(ti.abs(v0), ti.abs(v1))
-                    e = ti.max((h * ti.abs(ex) / sx).max(), (h * ti.abs(ev) / sv).max())
-                    ti.atomic_max(self.error[None], e)
-                self._write(model, state, xo, vo, i, x0, v0, x1, v1, h, step, finish)
-                if ti.static(finish and state.has_lifetimes):
-                    model.release_if_dead(state, i, ta + h)  # dies within this step
-            elif ti.static(finish and state.has_lifetimes):
-                model.release(state, i)
+            model.element_pass(self.caches, fx, fv, t + self.tableau.c[last] * h)
+
+    @ti.func
+    def update(self, model: ti.template(), i, x0, v0, t, h):
+        last = ti.static(self.stages - 1)
+        tl = t + self.tableau.c[last] * h
+        kx_last = v0
+        kv_last = v0
+        if ti.static(model.coupled and last == 0):
+            kv_last = model.accel_total(self.caches, i, x0, v0, tl)
+        elif ti.static(model.coupled):
+            kx_last = self.sv[last][i]
+            kv_last = model.accel_total(self.caches, i, self.sx[last][i], self.sv[last][i], tl)
+        else:
+            xs, vs = self._stage_state_from(i, x0, v0, last, h)
+            kx_last = vs
+            kv_last = model.accel(i, xs, vs, tl)
+        dx = self.tableau.b[last] * kx_last
+        dv = self.tableau.b[last] * kv_last
+        for j in ti.static(range(last)):
+            if ti.static(self.tableau.b[j] != 0.0):
+                dx += self.tableau.b[j] * self.kx[j, i]
+                dv += self.tableau.b[j] * self.kv[j, i]
+        x1 = x0 + h * dx
+        v1 = v0 + h * dv
+        if ti.static(self._embedded):
+            ex = (self.tableau.b[last] - self.tableau.b_low[last]) * kx_last
+            ev = (self.tableau.b[last] - self.tableau.b_low[last]) * kv_last
+            for j in ti.static(range(last)):
+                if ti.static(self.tableau.b[j] != self.tableau.b_low[j]):
+                    ex += (self.tableau.b[j] - self.tableau.b_low[j]) * self.kx[j, i]
+                    ev += (self.tableau.b[j] - self.tableau.b_low[j]) * self.kv[j, i]
+            # Mixed absolute/relative scale per component (Hairer et al., eq. II.4.10).
+            sx = self.atol + self.rtol * ti.max(ti.abs(x0), ti.abs(x1))
+            sv = self.atol + self.rtol * ti.max(ti.abs(v0), ti.abs(v1))
+            e = ti.max((h * ti.abs(ex) / sx).max(), (h * ti.abs(ev) / sv).max())
+            ti.atomic_max(self.error[None], e)
+        return x1, v1
+
+    @ti.func
+    def _stage_state_from(self, i, x0, v0, s: ti.template(), h):
+        x = x0
+        v = v0
+        for j in ti.static(range(s)):
+            if ti.static(self.tableau.a[s][j] != 0.0):
+                x += h * self.tableau.a[s][j] * self.kx[j, i]
+                v += h * self.tableau.a[s][j] * self.kv[j, i]
+        return x, v
 
 
 EXPLICIT_EULER = Tableau("explicit_euler", 1, a=((),), b=(1.0,), c=(0.0,))

@@ -4,10 +4,10 @@ tasks.
 Each solver iteration is a few parallel loops over blocks of rows, and nothing else: a block writes its
 partial dot products into a slot, and the next loop's blocks each add up those partials themselves, in
 the same fixed order, so every block derives the same scalars (alpha, beta, the stopping test) without a
-serial task in between (each costs a launch on the CPU, PLATFORM.md). On the CPU the order of the sums
-never depends on the thread count, so a solve gives the same bits with 1 or 2 threads (STYLE.md,
-determinism). On GPUs a block is one row and the partials are added with atomics (fast, not bitwise
-reproducible); thread 0 clears a slot one loop before it is reused.
+serial task in between (each costs a kernel launch, tens of microseconds on the CPU). On the CPU the
+order of the sums never depends on the thread count, so a solve gives the same bits with 1 or 2 threads.
+On GPUs a block is one row and the partials are added with atomics (fast, not bitwise reproducible);
+thread 0 clears a slot one loop before it is reused.
 """
 
 import math
@@ -71,7 +71,12 @@ class LinearSolver:
     def solve(self, system, atol: float = 0.0) -> LinearSolveResult:
         """Solve system.apply(x) = system.rhs into system.solution; stops when |r| <= tol |b| or
         |r| <= atol (in b's units), or after max_iterations. Returns iterations and residual."""
-        self._ensure(system.size)
+        if self.size < 0:
+            self.bind(system.size)  # a solver used on its own binds to its first system
+        if system.size != self.size:
+            raise ValueError(
+                f"{self.name}: bound to systems of {self.size} rows, got {system.size}; call bind(n) first"
+            )
         self._start(system, self.warm_start)
         base = 0
         floor = float(atol) ** 2
@@ -82,7 +87,8 @@ class LinearSolver:
                 break
         return self._record(floor)
 
-    def _ensure(self, n: int) -> None:
+    def bind(self, n: int) -> None:
+        """Allocate the solver's vectors for systems of n block rows (before any solve)."""
         if n == self.size:
             return
         self.size = n

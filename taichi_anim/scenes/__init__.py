@@ -1,10 +1,17 @@
 """Demo scenes, by name: what `taichi-anim demo NAME` runs."""
 
 from .. import validate
-from . import blobs, cloth, drape, fountain, spheres
+from . import blobs, cloth, drape, flag, fountain, spheres
 from .base import Scene
 
-SCENES = {"fountain": fountain, "blobs": blobs, "spheres": spheres, "cloth": cloth, "drape": drape}
+SCENES = {
+    "fountain": fountain,
+    "blobs": blobs,
+    "spheres": spheres,
+    "cloth": cloth,
+    "drape": drape,
+    "flag": flag,
+}
 DEFAULT_SCENE = "fountain"
 
 

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from .. import Builder, ClothMaterial, make_integrator
+from .. import Builder, ClothMaterial, FabricMaterial, make_integrator, validate
 from .base import Scene
 
 FRAME_DT = 1 / 60  # [s]
@@ -17,15 +17,33 @@ IMPLICIT_SUBSTEPS = 4  # dt = 1/240 s: implicit Euler is stable at any step, thi
 # Integrators that choose their own internal steps, or need none for stability: run at the implicit dt.
 SELF_STABLE = {"implicit_euler", "rk45", "adaptive"}
 # Fixed-step explicit methods on a mass-spring grid: stable for dt < ~0.58 sqrt(m/k) (measured for
-# symplectic Euler, PLATFORM.md); keep a margin for the shear and bend springs adding to the stiffness.
+# symplectic Euler, benchmarks/RESULTS.md); keep a margin for the shear and bend springs' stiffness.
 EXPLICIT_CFL = 0.4
 FAMILIES = ("stretch", "shear", "bend")
 
 
-def substeps_for(integrator: str, material: ClothMaterial, vertex_mass: float) -> int:
-    """Steps per 1/60 s frame for `integrator` on cloth of interior vertex mass [kg] and `material`."""
+# The continuum fabric of the demos' `material="membrane"` switch: the areal Young's modulus of a grid of
+# stretch springs k [N/m] is about k (each spring carries k * strain * cell over a cell's width), so
+# 1e3 N/m matches ClothMaterial's stretch springs; bending 5e-5 N m is a light cotton's (springs across two
+# cells have no linear bending stiffness to match).
+FABRIC = FabricMaterial(density=0.2, youngs_modulus=1.0e3, poisson_ratio=0.3, bending_stiffness=5.0e-5)
+
+
+def material_for(name: str, bend_stiffness: float):
+    """The cloth demos' material: "springs" (ClothMaterial) or "membrane" (FABRIC)."""
+    validate.choice("material", name, ["springs", "membrane"])
+    return FABRIC if name == "membrane" else ClothMaterial(bend_stiffness=bend_stiffness)
+
+
+def substeps_for(integrator: str, material, vertex_mass: float, cell: float = 0.0) -> int:
+    """Steps per 1/60 s frame for `integrator` on cloth of interior vertex mass [kg], grid cell [m] and
+    `material`."""
     if integrator in SELF_STABLE:
         return IMPLICIT_SUBSTEPS
+    if isinstance(material, FabricMaterial):
+        # Membrane waves cross a cell in cell / c, c = sqrt(E / density): keep the step under 0.4 of it.
+        dt = 0.4 * cell / math.sqrt(material.youngs_modulus / material.density)
+        return max(IMPLICIT_SUBSTEPS, math.ceil(FRAME_DT / dt))
     families = [(getattr(material, f"{f}_stiffness"), getattr(material, f"{f}_damping")) for f in FAMILIES]
     k = max(kf for kf, _ in families)
     dt = EXPLICIT_CFL * math.sqrt(vertex_mass / k)
@@ -51,13 +69,16 @@ def build(
     resolution: int = 48,
     size: float = 1.0,
     air_damping: float = 0.3,
+    material: str = "springs",
 ) -> Scene:
     """A horizontal `size` [m] square sheet of `resolution` x `resolution` vertices at 1.2 m, pinned at
     the two corners of its back edge (z = -size/2); air_damping [1/s]: linear drag per unit mass;
     bend_stiffness [N/m]: 5x the ClothMaterial default, so compression buckles into folds rather than
-    grid-scale ripples. Other material values are ClothMaterial's defaults."""
+    grid-scale ripples. Other material values are ClothMaterial's defaults. material: "springs" or
+    "membrane" (a continuum fabric of the same stretch stiffness, FABRIC)."""
     n = int(resolution)
-    material = ClothMaterial(bend_stiffness=bend_stiffness)
+    material_name = material
+    material = material_for(material, bend_stiffness)
     half, height = 0.5 * size, 1.2
     b = Builder()
     b.add_force_gravity()
@@ -74,7 +95,7 @@ def build(
     if air_damping > 0.0:
         b.add_force_drag(air_damping * vertex_mass)
     model = b.finalize(seed=seed)
-    substeps = substeps_for(integrator, material, vertex_mass)
+    substeps = substeps_for(integrator, material, vertex_mass, size / (n - 1))
     pins = np.array([[-half, height, -half], [half, height, -half]])
     # The sheet swings through the vertical plane z = -size/2 and most of the way back up behind it.
     lo, hi = (-half - 0.1, height - size - 0.1, -half - 0.8 * size), (half + 0.1, height + 0.1, half - 0.2)
@@ -93,6 +114,7 @@ def build(
             "size": size,
             "air_damping": air_damping,
             "bend_stiffness": bend_stiffness,
+            "material": material_name,
             "pinned": cloth.pinned.tolist(),
         },
         frames=120,

@@ -7,9 +7,9 @@ normals."""
 
 import numpy as np
 
-from .. import Builder, ClothMaterial
+from .. import Builder
 from .base import Scene
-from .cloth import FRAME_DT, cloth_integrator, substeps_for
+from .cloth import FRAME_DT, cloth_integrator, material_for, substeps_for
 
 
 def uv_sphere(center, radius: float, *, rings: int = 24, segments: int = 48):
@@ -44,13 +44,15 @@ def build(
     ball_radius: float = 0.3,
     ball_friction: float = 0.3,
     floor_friction: float = 0.5,
+    material: str = "springs",
 ) -> Scene:
     """A horizontal `size` [m] square cloth of `resolution` x `resolution` vertices, released at rest at
     `height` [m] above a ball of `ball_radius` [m] on the floor (y = 0), a little off the cloth's centre
     so the folds are not symmetric; frictions are Coulomb coefficients; bend_stiffness [N/m] as in the
-    cloth demo."""
+    cloth demo; material: "springs" or "membrane" as in the cloth demo."""
     n = int(resolution)
-    material = ClothMaterial(bend_stiffness=bend_stiffness)
+    material_name = material
+    material = material_for(material, bend_stiffness)
     half = 0.5 * size
     center = (0.06, ball_radius, -0.04)
     b = Builder()
@@ -67,7 +69,7 @@ def build(
     b.add_collider_plane(normal=(0.0, 1.0, 0.0), offset=0.0, restitution=0.0, friction=floor_friction)
     model = b.finalize(seed=seed)
     vertex_mass = material.density * (size / (n - 1)) ** 2
-    substeps = substeps_for(integrator, material, vertex_mass)
+    substeps = substeps_for(integrator, material, vertex_mass, size / (n - 1))
     reach = half + 0.15
     lo, hi = (-reach, 0.0, -reach), (reach, 0.75 * height, reach)  # framed for the draped cloth
     floor = np.array([[-reach, 0.0, -reach], [reach, 0.0, -reach], [reach, 0.0, reach], [-reach, 0.0, reach]])
@@ -93,6 +95,7 @@ def build(
             "floor_friction": floor_friction,
             "thickness": 0.005,
             "bend_stiffness": bend_stiffness,
+            "material": material_name,
         },
         frames=150,
         props=[ball],

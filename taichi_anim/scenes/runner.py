@@ -83,7 +83,7 @@ def run_scene(
         summary["sphere_contacts"] = contacts
         summary["max_overlap_over_radius"] = overlap / model.contacts.min_radius
     solver = getattr(scene.integrator, "linear_solver", None)
-    if model.springs is not None and solver is not None and solver.solves:
+    if model.coupled and solver is not None and solver.solves:
         summary["linear_solver"] = solver.name
         summary["mean_iterations"] = solver.total_iterations / solver.solves
         summary["last_residual"] = solver.last.residual

@@ -12,12 +12,13 @@ import numpy as np
 import taichi as ti
 
 from ..runtime import data_oriented, np_float
+from .base import PointTerm
 
 _EPS = 1e-12
 
 
 @data_oriented
-class AnchorSpring:
+class AnchorSpring(PointTerm):
     """Per-particle anchor springs; a particle without one has stiffness 0.
 
     anchor (N,3) [m], stiffness (N,) [N/m], rest_length (N,) [m], damping (N,) [kg/s].

@@ -7,10 +7,10 @@ indefinite; it is clamped at 0 (Choi & Ko, "Stable but Responsive Cloth", 2002, 
 case is exact, a compressed spring keeps only its axial stiffness (so a buckling cloth is not forced
 to stay flat). The x-derivative of the damping force is left out, as Baraff & Witkin do (sec. 5).
 
-Two passes, no float atomics: a loop over springs evaluates each spring once into a per-spring field,
-then each particle sums its springs' values with their signs over a compressed adjacency list sorted
-by particle, in a fixed order (deterministic at any thread count). The update loop that follows may
-overwrite positions in place, since the spring pass has finished reading them.
+Two passes, no float atomics: a loop over springs evaluates each spring once into a per-spring field
+(in the cache of the solver that runs it), then each particle sums its springs' values with their signs
+over a compressed adjacency list sorted by particle, in a fixed order (deterministic at any thread
+count). The update loop that follows may overwrite positions in place: the spring pass has read them.
 """
 
 import numpy as np
@@ -39,9 +39,28 @@ def spring_stiffness_apply(n, axial, transverse, p):
 
 
 @data_oriented
+class SpringCache:
+    """A solver's scratch for the springs: force on each spring's first end (S,) [N]; with implicit
+    solves its direction n (S,), the two stiffnesses (axial, transverse) of
+    S_s = -(h df/dv + h^2 df/dx) = axial n n^T + transverse (I - n n^T) (S,2) [kg], and df/dx (v_i - v_j)."""
+
+    def __init__(self, count: int, implicit: bool):
+        self.f = ti.Vector.field(3, float, count)
+        self.n = ti.Vector.field(3, float, count) if implicit else None
+        self.ab = ti.Vector.field(2, float, count) if implicit else None
+        self.kxv = ti.Vector.field(3, float, count) if implicit else None
+
+
+@data_oriented
 class Springs:
-    """Springs of a model. pairs (S,2) particle indices; rest_length (S,) [m]; stiffness (S,) [N/m];
-    damping (S,) [kg/s] along the spring; family (S,) int (0 stretch, 1 shear, 2 bend; for reports)."""
+    """Springs of a model, an element term of two particles (the term protocol in base.py, in the compact
+    form a spring allows: a direction and two stiffnesses instead of four 3x3 blocks).
+    pairs (S,2) particle indices; rest_length (S,) [m]; stiffness (S,) [N/m]; damping (S,) [kg/s] along
+    the spring; family (S,) int (0 stretch, 1 shear, 2 bend; for reports)."""
+
+    coupled = True
+    has_jacobian = True
+    has_energy = True
 
     def __init__(self, particle_count: int, pairs, rest_length, stiffness, damping, family=None):
         pairs = np.sort(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), axis=1)
@@ -50,6 +69,7 @@ class Springs:
         # springs as built jump a whole grid row between neighbours), 1.4x faster at 128^2 here.
         order = np.lexsort((pairs[:, 1], pairs[:, 0]))
         self.count = s
+        self.particle_count = particle_count
         self.pairs = pairs[order]
         self.rest_length = np.asarray(rest_length, dtype=np.float64)[order]
         self.stiffness = np.broadcast_to(np.asarray(stiffness, dtype=np.float64), (s,))[order]
@@ -79,49 +99,51 @@ class Springs:
         self.spring_pair.from_numpy(pairs.astype(np.int32))
         param = np.stack([self.rest_length, self.stiffness, self.damping], axis=1)
         self.spring_param.from_numpy(param.astype(f))
-        self.spring_f = ti.Vector.field(3, float, s)  # force on the first end, this evaluation
-        # Implicit solves store per spring its direction, (axial, transverse) stiffness of
-        # S = -(h df/dv + h^2 df/dx) = axial n n^T + transverse (I - n n^T), and df/dx (v_i - v_j).
-        self.spring_n = None
-        self.spring_ab = None
-        self.spring_kxv = None
 
     def settings(self) -> dict:
         names = ("stretch", "shear", "bend")
         fam = {names[k]: int((self.family == k).sum()) for k in range(3) if (self.family == k).any()}
         return {"type": "springs", "count": self.count, "families": fam}
 
-    def ensure_implicit(self) -> None:
-        if self.spring_n is None:
-            self.spring_n = ti.Vector.field(3, float, self.count)
-            self.spring_ab = ti.Vector.field(2, float, self.count)
-            self.spring_kxv = ti.Vector.field(3, float, self.count)
+    def make_cache(self, particle_count: int, implicit: bool) -> SpringCache:
+        return SpringCache(self.count, implicit)
+
+    def energy(self, x, masses=None) -> float:
+        """Elastic energy sum_s k/2 (l - L)^2 [J] at positions x (N,3) [m]."""
+        d = (
+            np.asarray(x, dtype=np.float64)[self.pairs[:, 0]]
+            - np.asarray(x, dtype=np.float64)[self.pairs[:, 1]]
+        )
+        stretch = np.linalg.norm(d, axis=1) - self.rest_length
+        return float(0.5 * np.sum(self.stiffness * stretch**2))
 
     @ti.func
-    def evaluate(self, xf: ti.template(), vf: ti.template(), serial: ti.template()):
+    def evaluate(self, cache: ti.template(), xf: ti.template(), vf: ti.template(), t, serial: ti.template()):
         """The spring pass (a top-level loop: call it first in a kernel): every spring's force at the
-        positions xf and velocities vf (fields) into spring_f."""
+        positions xf and velocities vf (fields) into the cache."""
         ti.loop_config(serialize=serial)
         for s in range(self.count):
             ij = self.spring_pair[s]
             p = self.spring_param[s]
             f, _, _ = spring_force(xf[ij[0]] - xf[ij[1]], vf[ij[0]] - vf[ij[1]], p[0], p[1], p[2])
-            self.spring_f[s] = f
+            cache.f[s] = f
 
     @ti.func
-    def force(self, i):
+    def gather(self, cache: ti.template(), i):
         """Sum of the forces of the last spring pass on particle i."""
         f = ti.Vector.zero(float, 3)
         for e in range(self.adj_start[i], self.adj_start[i + 1]):
             s = self.adj_spring[e]
             if s > 0:
-                f += self.spring_f[s - 1]
+                f += cache.f[s - 1]
             else:
-                f -= self.spring_f[-s - 1]
+                f -= cache.f[-s - 1]
         return f
 
     @ti.func
-    def evaluate_implicit(self, xf: ti.template(), vf: ti.template(), h, serial: ti.template()):
+    def linearize(
+        self, cache: ti.template(), xf: ti.template(), vf: ti.template(), t, h, serial: ti.template()
+    ):
         """The spring pass of an implicit step (top-level loop): force, direction, the two stiffnesses of
         S_s and df/dx (v_i - v_j) with the clamped Jacobian, so b matches the matrix that is solved."""
         ti.loop_config(serialize=serial)
@@ -131,14 +153,14 @@ class Springs:
             dv = vf[ij[0]] - vf[ij[1]]
             f, n, length = spring_force(xf[ij[0]] - xf[ij[1]], dv, p[0], p[1], p[2])
             tr = ti.max(1.0 - p[0] / ti.max(length, _EPS), 0.0)
-            self.spring_f[s] = f
-            self.spring_n[s] = n
-            self.spring_ab[s] = ti.Vector([h * p[2] + h * h * p[1], h * h * p[1] * tr])
-            self.spring_kxv[s] = -spring_stiffness_apply(n, p[1], p[1] * tr, dv)
+            cache.f[s] = f
+            cache.n[s] = n
+            cache.ab[s] = ti.Vector([h * p[2] + h * h * p[1], h * h * p[1] * tr])
+            cache.kxv[s] = -spring_stiffness_apply(n, p[1], p[1] * tr, dv)
 
     @ti.func
-    def assemble(self, i):
-        """After evaluate_implicit: the spring force on i, (df/dx v)_i and the diagonal block sum_s S_s."""
+    def gather_linear(self, cache: ti.template(), i):
+        """After linearize: the spring force on i, (df/dx v)_i and the diagonal block sum_s S_s."""
         f = ti.Vector.zero(float, 3)
         kxv = ti.Vector.zero(float, 3)
         diag = ti.Matrix.zero(float, 3, 3)
@@ -150,22 +172,21 @@ class Springs:
                 sign = -1.0
                 s = -s
             s -= 1
-            f += sign * self.spring_f[s]
-            kxv += sign * self.spring_kxv[s]
-            n = self.spring_n[s]
-            ab = self.spring_ab[s]
+            f += sign * cache.f[s]
+            kxv += sign * cache.kxv[s]
+            n = cache.n[s]
+            ab = cache.ab[s]
             nn = n.outer_product(n)
             diag += ab[0] * nn + ab[1] * (eye - nn)
         return f, kxv, diag
 
     @ti.func
-    def apply(self, i, pf: ti.template()):
-        """sum_s S_s (p_i - p_j) over the springs of i (the off-diagonal and spring-diagonal part of the
-        implicit matrix times p; the solvers keep p zero at pinned particles)."""
+    def apply(self, cache: ti.template(), i, pf: ti.template()):
+        """sum_s S_s (p_i - p_j) over the springs of i (the solvers keep p zero at pinned particles)."""
         pi = pf[i]
         acc = ti.Vector.zero(float, 3)
         for e in range(self.adj_start[i], self.adj_start[i + 1]):
             s = ti.abs(self.adj_spring[e]) - 1
-            ab = self.spring_ab[s]
-            acc += spring_stiffness_apply(self.spring_n[s], ab[0], ab[1], pi - pf[self.adj_other[e]])
+            ab = cache.ab[s]
+            acc += spring_stiffness_apply(cache.n[s], ab[0], ab[1], pi - pf[self.adj_other[e]])
         return acc

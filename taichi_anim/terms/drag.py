@@ -4,10 +4,11 @@
 import taichi as ti
 
 from ..runtime import data_oriented
+from .base import PointTerm
 
 
 @data_oriented
-class Drag:
+class Drag(PointTerm):
     """Linear drag with coefficient `k` [kg/s] towards the air velocity `wind` [m/s]."""
 
     def __init__(self, k: float, wind=(0.0, 0.0, 0.0)):

@@ -3,10 +3,11 @@
 import taichi as ti
 
 from ..runtime import data_oriented
+from .base import PointTerm
 
 
 @data_oriented
-class Gravity:
+class Gravity(PointTerm):
     """Constant gravitational acceleration `g` [m/s^2] (the engine is Y-up)."""
 
     has_jacobian = False  # constant force: implicit solvers skip its (zero) blocks at compile time

@@ -1,0 +1,64 @@
+"""The world step: one driver owns what every time-integration method shares — emission, sphere
+contacts and their substeps, the finish tail of a step (alive check, colliders, the divergence watch,
+release of dead slots), trails, time — while a method (integrators/) supplies only its update.
+Newton separates `solver.step(...)` from its collision pipeline the same way."""
+
+import taichi as ti
+
+from . import validate
+from .collision import collide
+
+
+@ti.func
+def finish_particle(
+    model: ti.template(), state: ti.template(), mode: ti.template(), i, x0, v0, x1, v1, h, step
+):
+    """The end of a step for particle i, fused into a method's last kernel: colliders against the step's
+    start point (x0, v0), a count of non-finite results for the divergence watch, and the write."""
+    x, v = x1, v1
+    if ti.static(model.collider_count > 0):
+        x, v = collide(model.colliders, mode, x0, v0, x1, v1, h, model.radius(i), model.rest_speed)
+    total = x.sum() + v.sum()  # NaN or inf in any component makes the sum NaN or inf
+    if ti.math.isnan(total) or ti.math.isinf(total):
+        ti.atomic_add(state.nonfinite_count[None], 1)
+        ti.atomic_min(state.nonfinite_step[None], step)
+    state.particle_x[i] = x
+    state.particle_v[i] = v
+
+
+class Stepper:
+    """Steps `model`'s states with `integrator`, which is bound to the model here (its scratch fields
+    are allocated now, never during a run). `step(state, dt)` advances a state by dt [s] in place."""
+
+    def __init__(self, model, integrator):
+        self.model = model
+        self.integrator = integrator
+        integrator.bind(model)
+
+    def step(self, state, dt: float) -> None:
+        dt = validate.positive("dt", dt)
+        model, method = self.model, self.integrator
+        if state.model is not model:
+            raise ValueError("state belongs to another model: make it with this model's state()")
+        if model.emitter_count:
+            model.emit(state, dt)
+        contacts = model.contacts
+        if contacts is None:
+            method.advance_step(model, state, dt)
+        else:
+            # Sphere contacts after every (sub)step; continuous contacts choose substeps from v_max.
+            n = contacts.substeps(state, dt)
+            h = dt / n
+            t0 = state.time
+            for k in range(n):
+                state.time = t0 + k * h
+                method.advance_step(model, state, h)
+                contacts.solve(state, h, state.step_count + 1)
+            state.time = t0
+        if state.trail_length:
+            state.record_trails(state.trail_head)
+            state.trail_head = (state.trail_head + 1) % state.trail_length
+        state.time += dt
+        state.step_count += 1
+        if state.step_count % method.check_every == 0:
+            state.check_finite()
