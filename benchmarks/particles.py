@@ -15,7 +15,7 @@ read and written, 4 x 12 B, plus the death time read, 4 B = 52 B (the mass is a 
 here, gravity and the planes are constants; `Model.release_if_dead` reads the same death time again, and
 touches the free-slot bit words only for the ~dt/lifetime = 0.3 % of particles that die in the step).
 The streaming limit is a NumPy copy of 512 MiB in the same run. Emission and the step kernel are then
-timed apart (`model.emit`, `integ._step`), a run with Taichi's kernel profiler counts launches per step
+timed apart (`model.emit`, `integ.advance_step`), a run with Taichi's kernel profiler counts launches per step
 and the time of each kernel, and the integrator loop is timed serial against parallel at small N.
 
     .venv/bin/python benchmarks/particles.py           # full run (~4 min), writes benchmarks/RESULTS.md
@@ -166,7 +166,7 @@ def taichi_run(n: int, v: Variant, window: float) -> dict:
         a = clock()
         model.emit(state, DT)
         b = clock()
-        integ._step(model, state, DT)
+        integ.advance_step(model, state, DT)
         c = clock()
         state.time += DT
         state.step_count += 1
@@ -641,7 +641,7 @@ def main() -> None:
         )
         + "### Where the time goes\n\n"
         "Emission (`model.emit`: the emitter's serial free-slot search + the parallel spawn kernel) and "
-        "the fused step kernel (`integ._step`) timed apart, with `ti.sync()` between them (adds one sync "
+        "the fused step kernel (`integ.advance_step`) timed apart, with `ti.sync()` between them (adds one sync "
         "per part). The "
         "reference is a minimal Taichi kernel moving the same 52 B per particle (gravity, symplectic "
         "update, alive check, no collisions; `taichi_stream_reference`): what a plain Taichi field kernel "

@@ -1,0 +1,53 @@
+"""runtime.data_oriented: the descriptor fast path (on the Taichi versions it is verified for) and the
+plain `ti.data_oriented` fallback give the same simulation, bit for bit."""
+
+import os
+import subprocess
+import sys
+
+SCRIPT = """
+import hashlib, numpy as np, taichi_anim as ta
+from taichi_anim import runtime
+ta.init("cpu", precision="f64", cpu_threads=1)
+b = ta.Builder()
+b.add_force_gravity()
+c = b.add_cloth_grid(origin=(0, 1, 0), size=(0.3, 0.3), resolution=(6, 6), plane="xy", pinned=[30, 35],
+                     material=ta.FabricMaterial())
+b.add_force_aerodynamics(c, wind=(2.0, 0.0, 1.0))
+model = b.finalize()
+for name in ("symplectic_euler", "implicit_euler", "rk4"):
+    s = model.state()
+    integ = ta.make_integrator(name)
+    for _ in range(10):
+        integ.step(model, s, 1e-4)
+    print(name, hashlib.sha256(s.particle_x.to_numpy().tobytes()).hexdigest())
+print("fast", runtime.FAST_DATA_ORIENTED)
+"""
+
+
+def run(plain: bool) -> list[str]:
+    env = dict(os.environ)
+    env.pop("TAICHI_ANIM_PLAIN_DATA_ORIENTED", None)
+    if plain:
+        env["TAICHI_ANIM_PLAIN_DATA_ORIENTED"] = "1"
+    out = subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, check=True)
+    return [line for line in out.stdout.splitlines() if not line.startswith("[Taichi]")]
+
+
+def test_fast_and_plain_data_oriented_give_the_same_bits():
+    fast, plain = run(False), run(True)
+    assert fast[-1] == "fast True" and plain[-1] == "fast False"
+    assert fast[:-1] == plain[:-1] and len(fast) == 4
+
+
+def test_fast_path_only_on_verified_taichi_versions(monkeypatch):
+    import taichi as ti
+
+    from taichi_anim import runtime
+
+    monkeypatch.delenv("TAICHI_ANIM_PLAIN_DATA_ORIENTED", raising=False)
+    assert runtime.fast_data_oriented_available() == (
+        tuple(ti.__version__) in runtime.FAST_DATA_ORIENTED_VERSIONS
+    )
+    monkeypatch.setattr(ti, "__version__", (9, 9, 9))
+    assert not runtime.fast_data_oriented_available()
