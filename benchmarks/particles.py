@@ -641,8 +641,8 @@ def main() -> None:
         )
         + "### Where the time goes\n\n"
         "Emission (`model.emit`: the emitter's serial free-slot search + the parallel spawn kernel) and "
-        "the fused step kernel (`integ.advance_step`) timed apart, with `ti.sync()` between them (adds one sync "
-        "per part). The "
+        "the fused step kernel (`integ.advance_step`) timed apart, with `ti.sync()` between them (adds "
+        "one sync per part). The "
         "reference is a minimal Taichi kernel moving the same 52 B per particle (gravity, symplectic "
         "update, alive check, no collisions; `taichi_stream_reference`): what a plain Taichi field kernel "
         "reaches here.\n\n"

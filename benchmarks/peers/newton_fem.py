@@ -268,4 +268,3 @@ __all__ = [
     "timed_frames",
     "versions",
 ]
-
