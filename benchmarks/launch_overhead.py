@@ -115,8 +115,8 @@ def main() -> int:
         "# Launch overhead: descriptor-bound kernels against `ti.data_oriented`\n\n"
         f"Command: `.venv/bin/python benchmarks/launch_overhead.py{' --quick' if args.quick else ''}`. "
         f"Median µs per step over {steps} steps after {warmup}, {rounds} rounds alternating the paths, "
-        f"a fresh process each; f32, CPU, 2 threads, dt = 1e-4 s; implicit: PCG tol 1e-3, at most 8 iterations."
-        " "
+        "a fresh process each; f32, CPU, 2 threads, dt = 1e-4 s; implicit: PCG tol 1e-3, at most 8 "
+        "iterations. "
         f"Load average at start {load_start}, at end {load_average()}.\n\n{table}\n"
     )
     (out_dir / "launch_overhead.md").write_text(text)
