@@ -148,8 +148,8 @@ def stats(x: np.ndarray, v: np.ndarray, overlap: float) -> dict:
     }
 
 
-def engine_overlap(model, state) -> float:
-    return float(model.contacts.overlap_stats(state)[0])
+def engine_overlap(model, state, integ) -> float:
+    return float(integ.stepper_for(model).contacts.overlap_stats(model, state)[0])
 
 
 def cpu_seconds() -> float:
@@ -175,8 +175,8 @@ def settle(n: int, steps: int) -> dict:
     state.check_finite()
     xs, vs = state.particle_x.to_numpy(), state.particle_v.to_numpy()
     return {"x": xs, "v": vs, "lo": lo, "hi": hi, "steps": steps, "wall": wall,
-            "relaxation": float(model.contacts.relaxation),
-            **stats(xs, vs, engine_overlap(model, state))}  # fmt: skip
+            "relaxation": float(integ.stepper_for(model).contacts.relaxation),
+            **stats(xs, vs, engine_overlap(model, state, integ))}  # fmt: skip
 
 
 def run_engine(start: dict, steps: int, split_steps: int, method: str = "auto") -> dict:
@@ -188,7 +188,7 @@ def run_engine(start: dict, steps: int, split_steps: int, method: str = "auto") 
     t_build0 = time.perf_counter()
     model, state, integ = build_engine(start["x"], start["lo"], start["hi"], method=method, v=start["v"])
     t_model = time.perf_counter() - t_build0
-    contacts = model.contacts
+    contacts = integ.stepper_for(model).contacts
     a = clock()
     integ.step(model, state, DT)
     first = clock() - a
@@ -223,7 +223,7 @@ def run_engine(start: dict, steps: int, split_steps: int, method: str = "auto") 
     split_wall = clock() - a
     del contacts.neighbors.build, contacts.solve  # back to the class's methods
     state.check_finite()
-    st = stats(state.particle_x.to_numpy(), state.particle_v.to_numpy(), engine_overlap(model, state))
+    st = stats(state.particle_x.to_numpy(), state.particle_v.to_numpy(), engine_overlap(model, state, integ))
     step = split_wall / split_steps
     return {
         "impl": f"taichi_anim ({method}, {threads} threads)",
@@ -339,7 +339,15 @@ def lockstep(x, v, lo, hi, steps: int, *, gravity, friction, method="auto", ever
     """Step the engine and the Warp port side by side from (x, v); per-step differences and statistics."""
     init("f32")
     model, state, integ = build_engine(x, lo, hi, method=method, gravity=gravity, v=v, friction=friction)
-    sim = build_warp(x, lo, hi, gravity=gravity, v=v, friction=friction, relaxation=model.contacts.relaxation)
+    sim = build_warp(
+        x,
+        lo,
+        hi,
+        gravity=gravity,
+        v=v,
+        friction=friction,
+        relaxation=integ.stepper_for(model).contacts.relaxation,
+    )
     rows = []
     for k in range(1, steps + 1):
         integ.step(model, state, DT)
@@ -348,7 +356,7 @@ def lockstep(x, v, lo, hi, steps: int, *, gravity, friction, method="auto", ever
             continue
         xe, ve = state.particle_x.to_numpy(), state.particle_v.to_numpy()
         xw, vw = sim.positions(), sim.velocities()
-        se = stats(xe, ve, engine_overlap(model, state))
+        se = stats(xe, ve, engine_overlap(model, state, integ))
         sw = stats(xw, vw, sim.max_overlap())
         rows.append(
             {
@@ -359,7 +367,12 @@ def lockstep(x, v, lo, hi, steps: int, *, gravity, friction, method="auto", ever
                 "warp": sw,
             }
         )
-    return {"n": len(x), "steps": steps, "neighbor_search": model.contacts.neighbors.describe(), "rows": rows}
+    return {
+        "n": len(x),
+        "steps": steps,
+        "neighbor_search": integ.stepper_for(model).contacts.neighbors.describe(),
+        "rows": rows,
+    }
 
 
 def equivalence(pile_n: int, pile_steps: int) -> dict:

@@ -3,10 +3,11 @@ Absent parts are empty tuples / None with count 0, and kernels branch on them at
 compiles and runs only what it has. Nothing here changes during a step: dynamic data is in State, and
 every scratch field (element caches, stage states, Krylov vectors) belongs to the solver that writes it."""
 
+from types import MappingProxyType
+
 import numpy as np
 import taichi as ti
 
-from .collision.spheres import ContactSpheres
 from .runtime import data_oriented, np_float, serial_loops
 from .state import ALIVE_FOREVER, State
 from .terms import Springs
@@ -56,8 +57,8 @@ class Model:
             self.particle_mass.from_numpy(masses.astype(np_float()))
             inv = np.divide(1.0, masses, out=np.zeros_like(masses), where=masses > 0)
             self.particle_inv_mass.from_numpy(inv.astype(np_float()))
-        self._uniform_inv = 1.0 / self.uniform_mass if self.uniform_mass else 0.0
-        self._per_particle_mass = self.uniform_mass is None  # kernels branch on this at compile time
+        self.uniform_inv_mass = 1.0 / self.uniform_mass if self.uniform_mass else 0.0
+        self.per_particle_mass = self.uniform_mass is None  # kernels branch on this at compile time
         radii = np.asarray(radius, dtype=np.float64)
         # Radii [m]: all zero for point particles (a compile-time 0 then), one value, or one per particle.
         self.max_radius = float(radii.max())
@@ -65,18 +66,18 @@ class Model:
         self.min_sphere_radius = float(radii[radii > 0].min()) if self.max_radius > 0 else 0.0
         self.uniform_radius = self.max_radius if self.max_radius == self.min_radius else None
         self.particle_radius = None
-        self._per_particle_radius = self.uniform_radius is None  # compile-time branch in kernels
+        self.per_particle_radius = self.uniform_radius is None  # compile-time branch in kernels
         if self.uniform_radius is None:
             self.particle_radius = ti.field(float, n)
             self.particle_radius.from_numpy(radii.astype(np_float()))
         self._static_count = n - sum(e.capacity for e in self.emitters)
-        # Sphere contacts (collision/spheres.py) when the scene asked for them; else None.
-        self.contacts = None
+        # Sphere contacts: the options the scene asked for (validated by the Builder), or None. The contact
+        # solver (collision/spheres.py) is built from them by the Stepper, which owns its fields.
+        self.sphere_contacts = None if contacts is None else MappingProxyType(dict(contacts))
         self.rest_speed = -1.0  # below it impacts do not bounce; < 0: every impact bounces
         if contacts is not None:
-            self.contacts = ContactSpheres(model=self, **contacts)
-            self.rest_speed = self.contacts.rest_speed
-            self.settings["sphere_contacts"] = self.contacts.settings()
+            self.rest_speed = float(contacts["rest_speed"])
+            self.settings["sphere_contacts"] = {k: v for k, v in contacts.items() if k != "domain"}
         # Springs (cloth) are one element term among others (membrane, bending, aerodynamics).
         self.springs = None
         if springs is not None and len(springs["pairs"]):
@@ -123,21 +124,21 @@ class Model:
     @ti.func
     def mass(self, i):
         m = ti.cast(self.uniform_mass or 0.0, float)
-        if ti.static(self._per_particle_mass):
+        if ti.static(self.per_particle_mass):
             m = self.particle_mass[i]
         return m
 
     @ti.func
     def inv_mass(self, i):
-        w = ti.cast(self._uniform_inv, float)
-        if ti.static(self._per_particle_mass):
+        w = ti.cast(self.uniform_inv_mass, float)
+        if ti.static(self.per_particle_mass):
             w = self.particle_inv_mass[i]
         return w
 
     @ti.func
     def radius(self, i):
         r = ti.cast(self.uniform_radius or 0.0, float)
-        if ti.static(self._per_particle_radius):
+        if ti.static(self.per_particle_radius):
             r = self.particle_radius[i]
         return r
 

@@ -106,7 +106,9 @@ def solve_static(
             linear += res.iterations
             dx = h * integ.system.solution.to_numpy().astype(np.float64)
         else:
-            integ.advance(model, state, xf, vf, xo, vo, state.time, state.time, h, state.step_count + 1, False)
+            integ.advance(
+                model, state, xf, vf, xo, vo, state.time, state.time, h, state.step_count + 1, False
+            )
             dx = xo.to_numpy().astype(np.float64) - x
         alpha = 1.0
         if energy is not None:

@@ -6,7 +6,9 @@ Newton separates `solver.step(...)` from its collision pipeline the same way."""
 import taichi as ti
 
 from . import validate
+from .errors import ParameterError
 from .collision import collide
+from .collision.spheres import ContactSpheres
 
 
 @ti.func
@@ -34,26 +36,36 @@ class Stepper:
         self.model = model
         self.integrator = integrator
         integrator.bind(model)
+        # The sphere-contact solver (its neighbour grid, predictions and sweep buffers), when the scene
+        # has sphere contacts.
+        opts = model.sphere_contacts
+        self.contacts = None if opts is None else ContactSpheres(model, **opts)
+
+    def settings(self) -> dict:
+        out = {"integrator": self.integrator.settings()}
+        if self.contacts is not None:
+            out["sphere_contacts"] = self.contacts.settings()
+        return out
 
     def step(self, state, dt: float) -> None:
         dt = validate.positive("dt", dt)
         model, method = self.model, self.integrator
         if state.model is not model:
-            raise ValueError("state belongs to another model: make it with this model's state()")
+            raise ParameterError("state belongs to another model: make it with this model's state()")
         if model.emitter_count:
             model.emit(state, dt)
-        contacts = model.contacts
+        contacts = self.contacts
         if contacts is None:
             method.advance_step(model, state, dt)
         else:
             # Sphere contacts after every (sub)step; continuous contacts choose substeps from v_max.
-            n = contacts.substeps(state, dt)
+            n = contacts.substeps(model, state, dt)
             h = dt / n
             t0 = state.time
             for k in range(n):
                 state.time = t0 + k * h
                 method.advance_step(model, state, h)
-                contacts.solve(state, h, state.step_count + 1)
+                contacts.solve(model, state, h, state.step_count + 1)
             state.time = t0
         if state.trail_length:
             state.record_trails(state.trail_head)

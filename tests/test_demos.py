@@ -51,7 +51,9 @@ def test_fountain_particles_stay_in_box_and_trails_export(tmp_path):
 def test_spheres_demo_exports_radii_and_keeps_spheres_in_the_box(tmp_path):
     ta.init("cpu")
     scene = make_scene("spheres", particles=5000)
-    assert scene.model.contacts.neighbors.method.value == "grid"  # 5000 > crossover, box given
+    assert (
+        scene.integrator.stepper_for(scene.model).contacts.neighbors.method.value == "grid"
+    )  # 5000 > crossover, box given
     for _ in range(12):  # 0.4 s: the column has hit the floor
         scene.advance_frame()
     cloud = read_point_cloud(scene.export_frame(tmp_path, 0)[0])
@@ -60,7 +62,9 @@ def test_spheres_demo_exports_radii_and_keeps_spheres_in_the_box(tmp_path):
     lo, hi = (np.array(b) for b in scene.bounds)
     assert np.all(cloud["points"] >= lo + r - 1e-4) and np.all(cloud["points"] <= hi - r + 1e-4)
     assert cloud["points"][:, 1].min() < 2 * r  # some lie on the floor
-    overlap, contacts = scene.model.contacts.overlap_stats(scene.state)
+    overlap, contacts = scene.integrator.stepper_for(scene.model).contacts.overlap_stats(
+        scene.model, scene.state
+    )
     assert contacts > 1000 and overlap < 0.25 * r  # mid-impact, one sweep per 1/2400 s step
 
 
@@ -130,7 +134,7 @@ def test_flag_flies_downwind_from_its_pole():
         scene.advance_frame()
     x, _, _ = scene.cloth_mesh()
     assert np.array_equal(x[pinned], x0[pinned])
-    free_edge = x0[:, 0] > x0[:, 0].max() - 1e-9
+    free_edge = np.isclose(x0[:, 0], x0[:, 0].max())
     assert x[free_edge, 0].mean() > 0.6 * scene.options["width"]  # blown out, not hanging
     assert np.all(_edge_lengths(x, triangles) < 1.2 * rest)  # the membrane holds the wind load
     assert np.all(np.isfinite(x))

@@ -134,8 +134,8 @@ class ContactSpheres:
 
     def __init__(
         self,
-        *,
         model,
+        *,
         restitution: float,
         friction: float,
         iterations: int,
@@ -146,7 +146,10 @@ class ContactSpheres:
         domain,
         relaxation: float = 2.0,
     ):
-        self.model = model
+        # Read once from the model's public description; the model is passed to the kernels, not kept.
+        self.particle_count = model.particle_count
+        self.uniform_radius = model.uniform_radius or 0.0
+        self.uniform_inv_mass = model.uniform_inv_mass
         self.restitution = validate.in_range("restitution", restitution, 0.0, 1.0)
         self.friction = validate.non_negative("friction", friction)
         self.iterations = validate.count("iterations", iterations, 1)
@@ -171,7 +174,7 @@ class ContactSpheres:
         self.slot_contacts = ti.field(ti.i32, (n, CONTACTS_KEPT))
         self.slot_contact_count = ti.field(ti.i32, n)
         self.sides = [_PositionSide(self, ti.Vector.field(3, float, n)) for _ in range(2)]
-        self._per_slot = model._per_particle_radius or model._per_particle_mass
+        self._per_slot = model.per_particle_radius or model.per_particle_mass
         self.slot_r = ti.field(float, n) if self._per_slot else None
         self.slot_w = ti.field(float, n) if self._per_slot else None
         self._position_acc, self._velocity_acc = accumulator_types()
@@ -192,25 +195,25 @@ class ContactSpheres:
 
     @ti.func
     def slot_radius(self, k):
-        r = ti.cast(self.model.uniform_radius or 0.0, float)
+        r = ti.cast(self.uniform_radius, float)
         if ti.static(self._per_slot):
             r = self.slot_r[k]
         return r
 
     @ti.func
     def slot_inv_mass(self, k):
-        w = ti.cast(self.model._uniform_inv, float)
+        w = ti.cast(self.uniform_inv_mass, float)
         if ti.static(self._per_slot):
             w = self.slot_w[k]
         return w
 
     # -- step ------------------------------------------------------------------------------------------
 
-    def substeps(self, state, dt: float) -> int:
+    def substeps(self, model, state, dt: float) -> int:
         """Substeps for this step: 1, or with `continuous` enough that 2 v_max h <= r_min / 2."""
         if not self.continuous:
             return 1
-        self._max_speed(state, state.time)
+        self._max_speed(model, state, state.time)
         travel = 2.0 * float(self.max_speed[None]) * dt
         need = max(1, math.ceil(travel / (0.5 * self.min_radius)))
         if need > self.max_substeps and not self._warned:
@@ -224,35 +227,44 @@ class ContactSpheres:
             self._warned = True
         return int(min(self.max_substeps, need))
 
-    def solve(self, state, h: float, step: int) -> None:
+    def solve(self, model, state, h: float, step: int) -> None:
         """Resolve contacts after a step of size h (state holds its prediction, ending at time + h)."""
         death = state.particle_death if state.has_lifetimes else None
         self.neighbors.build(state.particle_x, death=death, t=state.time + h)
         src, (a, b) = self.pred, self.sides
         for it in range(self.iterations):
-            self._project(state, src, a, it == 0)
+            self._project(model, state, src, a, it == 0)
             src, a, b = a, b, a
         self._velocities(state, src, 1.0 / h, step)
 
     @ti.func
-    def _gather(self, state: ti.template(), k):
+    def _gather(self, model: ti.template(), state: ti.template(), k):
         """Slot k's predicted velocity (and radius, inverse mass) from the state, by particle index."""
         i = self.neighbors.sorted_id[k]
         self.v_pred[k] = state.particle_v[i]
         if ti.static(self._per_slot):
-            self.slot_r[k] = self.model.radius(i)
-            self.slot_w[k] = self.model.inv_mass(i)
+            self.slot_r[k] = model.radius(i)
+            self.slot_w[k] = model.inv_mass(i)
 
     @ti.kernel
-    def _project(self, state: ti.template(), src: ti.template(), dst: ti.template(), first: ti.template()):
+    def _project(
+        self,
+        model: ti.template(),
+        state: ti.template(),
+        src: ti.template(),
+        dst: ti.template(),
+        first: ti.template(),
+    ):
         if ti.static(first and self._per_slot):
             # A pass of its own (top-level loops run one after the other): the sweep below reads the
             # neighbours' radii and masses, which must be this build's, not the last one's.
             for k in range(self.neighbors.size[None]):
-                self._gather(state, k)
+                self._gather(model, state, k)
         for k in range(self.neighbors.size[None]):
             if ti.static(first and not self._per_slot):
-                self._gather(state, k)  # only v*, which no sweep of positions reads: fused, one pass less
+                self._gather(
+                    model, state, k
+                )  # only v*, which no sweep of positions reads: fused, one pass less
             acc = self._position_acc(
                 x=src.x[k],
                 r=self.slot_radius(k),
@@ -266,8 +278,8 @@ class ContactSpheres:
             x = acc.x
             if acc.n > 0:
                 x += acc.dx * ti.min(1.0, self.relaxation / acc.n)
-            if ti.static(self.model.collider_count > 0):
-                x, _ = project_spheres(self.model.colliders, x, ti.Vector.zero(float, 3), acc.r, 0.0)
+            if ti.static(model.collider_count > 0):
+                x, _ = project_spheres(model.colliders, x, ti.Vector.zero(float, 3), acc.r, 0.0)
             dst.x[k] = x
 
     @ti.kernel
@@ -304,21 +316,21 @@ class ContactSpheres:
             state.particle_v[i] = v
 
     @ti.kernel
-    def _max_speed(self, state: ti.template(), t: float):
+    def _max_speed(self, model: ti.template(), state: ti.template(), t: float):
         self.max_speed[None] = 0.0
-        for i in range(self.model.particle_count):
-            if self.model.alive(state, i, t):
+        for i in range(model.particle_count):
+            if model.alive(state, i, t):
                 ti.atomic_max(self.max_speed[None], state.particle_v[i].norm())
 
     # -- diagnostics -----------------------------------------------------------------------------------
 
-    def overlap_stats(self, state) -> tuple[float, int]:
+    def overlap_stats(self, model, state) -> tuple[float, int]:
         """(largest overlap r_i + r_j - |x_i - x_j| [m] over all touching pairs, number of such pairs)
         in the current state: the measure of how well the last solve separated the spheres. It rebuilds
         the neighbour structure (the solver's scratch), so call it between steps."""
         death = state.particle_death if state.has_lifetimes else None
         self.neighbors.build(state.particle_x, death=death, t=state.time)
-        self._overlaps(state)
+        self._overlaps(model, state)
         return float(self.overlap[None]), int(self.contact_count[None]) // 2
 
     @ti.func
@@ -330,11 +342,11 @@ class ContactSpheres:
                 ret.n += 1
 
     @ti.kernel
-    def _overlaps(self, state: ti.template()):
+    def _overlaps(self, model: ti.template(), state: ti.template()):
         self.overlap[None] = 0.0
         self.contact_count[None] = 0
         for k in range(self.neighbors.size[None]):
-            self._gather(state, k)
+            self._gather(model, state, k)
         for k in range(self.neighbors.size[None]):
             p = self._position_acc(
                 x=self.x_pred[k], r=self.slot_radius(k), w=0.0, dx=ti.Vector.zero(float, 3), n=0

@@ -63,9 +63,14 @@ class Integrator:
 
     def step(self, model, state, dt: float) -> None:
         """Advance `state` of `model` by dt [s] in place (a Stepper bound to the model, made once)."""
+        self.stepper_for(model).step(state, dt)
+
+    def stepper_for(self, model) -> Stepper:
+        """The Stepper this integrator steps `model` with (made, and the integrator bound, on first use;
+        `stepper_for(model).contacts` is the model's sphere-contact solver, if it has one)."""
         if self._stepper is None or self._stepper.model is not model:
             self._stepper = Stepper(model, self)
-        self._stepper.step(state, dt)
+        return self._stepper
 
     def advance_step(self, model, state, dt: float) -> None:
         """One step of the state by dt, finished (adaptive methods take several internal steps)."""

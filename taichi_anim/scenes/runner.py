@@ -77,11 +77,12 @@ def run_scene(
         "png": str(png),
         "arch": backend_name(),
     }
-    if model.contacts is not None:
-        overlap, contacts = model.contacts.overlap_stats(state)
-        summary["neighbor_search"] = model.contacts.neighbors.describe()
+    spheres = integ.stepper_for(model).contacts
+    if spheres is not None:
+        overlap, contacts = spheres.overlap_stats(model, state)
+        summary["neighbor_search"] = spheres.neighbors.describe()
         summary["sphere_contacts"] = contacts
-        summary["max_overlap_over_radius"] = overlap / model.contacts.min_radius
+        summary["max_overlap_over_radius"] = overlap / spheres.min_radius
     solver = getattr(scene.integrator, "linear_solver", None)
     if model.coupled and solver is not None and solver.solves:
         summary["linear_solver"] = solver.name
