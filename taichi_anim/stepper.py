@@ -6,9 +6,9 @@ Newton separates `solver.step(...)` from its collision pipeline the same way."""
 import taichi as ti
 
 from . import validate
-from .errors import ParameterError
 from .collision import collide
 from .collision.spheres import ContactSpheres
+from .errors import ParameterError
 
 
 @ti.func
