@@ -13,6 +13,8 @@ from .terms import AnchorSpring, Drag, Gravity
 
 G = 9.81
 GROW = 2.0
+SHRINK = 1.0
+ETA_SAFE = 0.0
 
 
 def _potential(model):
@@ -77,6 +79,7 @@ def solve_static(
     x = state.particle_x.to_numpy().astype(np.float64)
     e0 = energy(x) if energy else None
     fnorm_prev = None
+    mnorm = float(np.linalg.norm(masses[free]))
     eta = 0.1
     history = []
     for k in range(max_iterations + 1):
@@ -95,7 +98,8 @@ def solve_static(
                 eta_new = 0.9 * (fnorm / fnorm_prev) ** 2
                 if 0.9 * eta * eta > 0.1:
                     eta_new = max(eta_new, 0.9 * eta * eta)
-                eta = min(max(eta_new, 1e-10), 0.1)
+                floor = ETA_SAFE * tol * G * mnorm / max(fnorm, 1e-300)
+                eta = min(max(eta_new, floor, 1e-10), 0.1)
             integ.linear_solver.tol = eta
         fnorm_prev = fnorm
         state.particle_x.from_numpy(x.astype(np_float()))
@@ -125,7 +129,7 @@ def solve_static(
                 if alpha == 1.0:
                     h = min(h * GROW, h_max)
                 else:
-                    h = max(h * alpha, 1e-6)
+                    h = max(h * alpha**SHRINK, 1e-6)
         history.append(alpha)
         x = x + alpha * dx
     state.particle_x.from_numpy(x.astype(np_float()))

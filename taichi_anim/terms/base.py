@@ -160,8 +160,13 @@ class ElementTerm:
             e, a = q // self.arity, q % self.arity
             f += cache.f[e, a]
             kxv += cache.kxv[e, a]
-            diag += cache.S[e, a, a]
+            diag += self.diagonal_block(cache, e, a)
         return f, kxv, diag
+
+    @ti.func
+    def diagonal_block(self, cache: ti.template(), e, a):
+        """S_aa of element e (a subclass with a compact cache overrides it)."""
+        return cache.S[e, a, a]
 
     @ti.func
     def apply(self, cache: ti.template(), i, pf: ti.template()):

@@ -230,17 +230,8 @@ class BendingDihedral(ElementTerm):
                 cache.s[e, a] = ti.Vector([s[3 * a], s[3 * a + 1], s[3 * a + 2]])
 
     @ti.func
-    def gather_linear(self, cache: ti.template(), i):
-        f = ti.Vector.zero(float, 3)
-        kxv = ti.Vector.zero(float, 3)
-        diag = ti.Matrix.zero(float, 3, 3)
-        for k in range(self.adj_start[i], self.adj_start[i + 1]):
-            q = self.adj_entry[k]
-            e, a = q // 4, q % 4
-            f += cache.f[e, a]
-            kxv += cache.kxv[e, a]
-            diag += cache.s[e, a].outer_product(cache.s[e, a])
-        return f, kxv, diag
+    def diagonal_block(self, cache: ti.template(), e, a):
+        return cache.s[e, a].outer_product(cache.s[e, a])
 
     @ti.func
     def apply(self, cache: ti.template(), i, pf: ti.template()):
