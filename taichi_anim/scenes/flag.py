@@ -67,8 +67,8 @@ def build(
         cell = width / (nx - 1)
         c = np.sqrt(youngs_modulus / 0.12)
         substeps = max(SUBSTEPS, int(np.ceil(FRAME_DT / (0.4 * cell / c))))
-    pole = (np.array([[0.0, 0.0, 0.0]]), np.array([[0.0, top + 0.1, 0.0]]))
-    lo, hi = (-0.2, top - 1.5 * height, -0.9 * width), (1.1 * width, top + 0.15, 0.9 * width)
+    pole = (np.array([[0.0, top - 1.6 * height, 0.0]]), np.array([[0.0, top + 0.1, 0.0]]))
+    lo, hi = (-0.1, top - 1.3 * height, -0.4 * width), (1.05 * width, top + 0.1, 0.4 * width)
     return Scene(
         name="flag",
         description="a flag on a pole in gusty wind (membrane + bending + aerodynamics, implicit Euler)",
@@ -91,6 +91,6 @@ def build(
         },
         frames=180,
         guides=pole,
-        view=(0.35, 0.25, 1.0),
-        zoom=1.2,
+        view=(0.3, 0.2, 1.0),
+        zoom=1.0,
     )
