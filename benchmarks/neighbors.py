@@ -26,7 +26,7 @@ single call for a brute-force pass longer than 5 s), and the median is reported.
 its predicted pass (the last one scaled by (N'/N)^2) stays under 20 s; beyond, its figures are
 extrapolated from the least-squares fit and marked so. The crossover is where brute force's build + query
 time equals the grid's, by linear interpolation of log(time ratio) against log N between the two measured
-sizes that bracket it (sizes 10^2 and 3 x 10^2 are added below the issue's range for that purpose only;
+sizes that bracket it (sizes 10^2 and 3 x 10^2 are added below the measured range for that purpose only;
 the slopes are fitted over N >= 10^3).
 
     .venv/bin/python benchmarks/neighbors.py           # full run (~5 min), writes benchmarks/results/
