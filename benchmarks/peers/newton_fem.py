@@ -51,7 +51,6 @@ square grid of cell a [m]:
 
 from __future__ import annotations
 
-import os
 import time
 
 import numpy as np
@@ -253,14 +252,9 @@ def linearisation_check(params: dict) -> float:
     return _check_stable_neo_hookean_linearisation(params["tri_ke"], params["tri_ka"])
 
 
-def cpu_threads_note() -> str:
-    return f"Warp CPU kernels: one thread (of {os.cpu_count()} logical CPUs)"
-
-
 __all__ = [
     "NewtonCloth",
     "available",
-    "cpu_threads_note",
     "describe_mapping",
     "init_warp",
     "linearisation_check",
