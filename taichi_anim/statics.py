@@ -1,6 +1,41 @@
-"""Static equilibrium (prototype under measurement)."""
+"""Static equilibrium: the rest shape of a model under its forces, by Newton's method on the engine's own
+implicit system, globalised by a line search on the potential energy and accelerated by Anderson mixing.
+
+Direction. A linearised backward-Euler step from zero velocity solves (M + (h beta + h^2) K) dv = h f; with
+dx = h dv that is (M / h^2 + (1 + beta / h) K) dx = f: for a step h much longer than the model's slowest
+period the Newton step K dx = f, regularised by M / h^2 (Levenberg-Marquardt), with the terms' positive
+semi-definite stiffness K. It is solved by block-Jacobi PCG as an inexact Newton step: relative tolerance
+eta_k = 0.9 (|f_k| / |f_k-1|)^2 (Eisenstat & Walker, "Choosing the forcing terms in an inexact Newton
+method", SIAM J. Sci. Comput. 17(1), 1996, choice 2, with their safeguard), capped at 0.1 and floored at
+0.1 tol g |m| / |f|, so the last solves do not reduce the linear residual far below what the stopping test
+needs (2-norms over free particles).
+
+Globalisation (when every force has a potential: springs, membrane, bending, gravity, anchor springs,
+uniform wind at v = 0; not aerodynamics). E(x) = the terms' energies (Model.energy) - sum m g.x
+- sum k w.x (wind) + the anchor springs'. A step is accepted when it satisfies Armijo's condition
+E(x + a dx) <= E(x) - 1e-4 a f.dx, halving a from 1 (Nocedal & Wright, "Numerical Optimization", 2nd ed.
+2006, alg. 3.1); a change of E within round-off of its parts also passes (near the solution E no longer
+resolves progress). h is the Levenberg-Marquardt parameter: doubled (up to h_max) after a full step,
+multiplied by a after a step cut to a. Without a potential every step is taken whole at the given h.
+
+Acceleration. Where a term projects its Hessian (springs' and the membrane's compression clamps, the
+Gauss-Newton bending Hessian), Newton converges only linearly: a hanging cloth's compressed top edge or
+folds leave a few modes the linearisation misjudges. Anderson acceleration (Walker & Ni, "Anderson
+acceleration for fixed-point iterations", SIAM J. Numer. Anal. 49(4), 2011, type II, depth 3) of the
+map x -> x + dx mixes the last steps to cancel those modes; its candidate replaces the Newton step when it
+has the lower energy and satisfies Armijo's condition, otherwise the history is dropped. The history is
+also dropped whenever h changes (the map changes with it).
+
+Measured on a 17 x 17 spring cloth (ClothMaterial defaults) falling from flat and hanging from two
+corners of one edge, f64 (benchmarks/results/cloth_continuum.md has the table): the previous version
+(full steps at h = 100, PCG to 1e-8) ended 100 iterations at residual 2.9e-2 after 32,430 PCG
+iterations; this one reaches 1e-6 in about 120 iterations and 8,000 PCG iterations. A plane-stress
+problem without compression (a curtain hanging in its own plane) converges quadratically in 4 to 6
+iterations. Pinned particles stay where they are.
+"""
 
 import math
+import weakref
 
 import numpy as np
 import taichi as ti
@@ -11,36 +46,60 @@ from .integrators import IntegratorImplicitEuler
 from .runtime import np_float
 from .terms import AnchorSpring, Drag, Gravity
 
-G = 9.81
-GROW = 2.0
-SHRINK = 1.0
-ETA_SAFE = 0.0
+G = 9.81  # [m/s^2] the weight that scales the stopping test
+ARMIJO = 1e-4
+ETA_MAX = 0.1  # loosest PCG relative tolerance (inexact Newton)
+ETA_FLOOR = 0.1  # ... and the fraction of the stopping test the linear residual must reach
+ANDERSON_DEPTH = 3
+MIN_STEP = 1.0 / 2**14  # shortest line-search step before a step is taken anyway
+STALL = 20  # stop when this many iterations lowered neither the best residual nor the energy
+
+# One solver per model (kernels compile once per model, not per call); dropped with the model.
+_SOLVERS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
-def _potential(model):
-    """E(x) [J] of every force at zero velocity, or None when one has no potential."""
+def _solver(model):
+    """(integrator, x, v, x out, v out fields) reused by every solve of `model`."""
+    got = _SOLVERS.get(model)
+    if got is None:
+        integ = IntegratorImplicitEuler(
+            linear_solver="pcg", tol=ETA_MAX, max_iterations=20_000, warm_start=False
+        )
+        integ.bind(model)
+        n = model.particle_count
+        got = (integ, *(ti.Vector.field(3, float, n) for _ in range(4)))
+        _SOLVERS[model] = got
+    return got
+
+
+def potential(model):
+    """E(x) -> (energy [J], round-off scale [J]) of every force at zero velocity, or None if one has no
+    potential (a term without energy, e.g. aerodynamics)."""
     if any(not getattr(t, "has_energy", False) for t in model.element_terms):
         return None
-    gravity = []
+    m = model.particle_masses()
+    free = m > 0.0
+    body = np.zeros(3)  # sum of the uniform body accelerations
+    wind = np.zeros(3)  # sum of k w of the wind terms: a constant force per particle at v = 0
     anchors = []
     for t in model.point_terms:
         if isinstance(t, Gravity):
-            gravity.append(np.asarray(t.g, dtype=np.float64))
-        elif isinstance(t, Drag) and not any(t.wind):
-            continue  # no force at v = 0
+            body += np.asarray(t.g, dtype=np.float64)
+        elif isinstance(t, Drag):
+            wind += t.k * np.asarray(t.wind, dtype=np.float64)
         elif isinstance(t, AnchorSpring):
-            anchors.append((t.anchor.to_numpy().astype(np.float64), t.params.to_numpy().astype(np.float64)))
+            p = t.params.to_numpy().astype(np.float64)
+            anchors.append((t.anchor.to_numpy().astype(np.float64), p[:, 0], p[:, 1]))
         else:
             return None
-    m = model.particle_masses()
-    g = sum(gravity, np.zeros(3))
 
     def energy(x):
-        e = sum(model.energy(x).values()) - float(np.sum(m * (x @ g)))
-        for a, p in anchors:
-            stretch = np.linalg.norm(x - a, axis=1) - p[:, 1]
-            e += 0.5 * float(np.sum(p[:, 0] * stretch**2))
-        return e
+        parts = list(model.energy(x).values())
+        parts.append(-float(np.sum(m * (x @ body))))
+        parts.append(-float(np.sum(x[free] @ wind)))
+        for anchor, k, rest in anchors:
+            parts.append(0.5 * float(np.sum(k * (np.linalg.norm(x - anchor, axis=1) - rest) ** 2)))
+        return sum(parts), sum(abs(p) for p in parts)
 
     return energy
 
@@ -52,86 +111,139 @@ def solve_static(
     tol: float = 1e-6,
     max_iterations: int = 200,
     h: float = 100.0,
+    h_max: float = 1e4,
     linear_tol: float | None = None,
     line_search: bool = True,
-    adapt: bool = True,
-    h_max: float = 1e4,
-    verbose: bool = False,
+    anderson: bool = True,
 ) -> dict:
+    """Move `state` to static equilibrium in place; velocities end at 0.
+
+    tol: stop when the largest force on a free particle is below tol * m g (its weight, g = 9.81);
+    h [s]: the first regularising step (longer is closer to pure Newton), adapted between h_max [s] and
+    1e-6 s by the line search; linear_tol: a fixed PCG relative tolerance instead of the inexact-Newton
+    forcing terms; line_search=False and anderson=False give plain regularised Newton at a fixed h (the
+    method before the line search, for comparison). Returns {"iterations", "residual" (the largest free
+    force over m g), "linear_iterations", "energy" (J, None without a potential), "h" (the last),
+    "backtracks" (steps cut by the line search), "accelerated" (Anderson steps taken), "converged"
+    (residual <= tol), "history" (the residual before each iteration)}. It stops at tol, at max_iterations,
+    or when STALL (20) iterations lowered neither the best residual nor the energy beyond round-off (the
+    residual's floor at this precision: then "converged" is False).
+    Raises DivergenceError if the iteration produces non-finite positions.
+    """
     tol = validate.positive("tol", tol)
     max_iterations = validate.count("max_iterations", max_iterations, 1)
     h = validate.positive("h", h)
-    integ = IntegratorImplicitEuler(
-        linear_solver="pcg", tol=linear_tol or 0.1, max_iterations=20_000, warm_start=False
-    )
-    integ.bind(model)
+    h_max = max(validate.positive("h_max", h_max), h)
+    if linear_tol is not None:
+        linear_tol = validate.positive("linear_tol", linear_tol)
+    integ, xf, vf, xo, vo = _solver(model)
     n = model.particle_count
-    xo = ti.Vector.field(3, float, n)
-    vo = ti.Vector.field(3, float, n)
     masses = model.particle_masses()
     free = masses > 0.0
     weight = np.maximum(masses, 1e-300) * G
-    energy = _potential(model) if line_search else None
-    linear = 0
-    residual = math.inf
+    mass_norm = float(np.linalg.norm(masses[free]))
+    energy = potential(model) if line_search else None
+    roundoff = 1e3 * float(np.finfo(np_float()).eps)  # relative noise of an energy sum
     zero = np.zeros((n, 3))
-    state.particle_v.from_numpy(zero.astype(np_float()))
+    zero_f = zero.astype(np_float())
     x = state.particle_x.to_numpy().astype(np.float64)
-    e0 = energy(x) if energy else None
-    fnorm_prev = None
-    mnorm = float(np.linalg.norm(masses[free]))
-    eta = 0.1
-    history = []
+    e0, scale0 = energy(x) if energy else (None, None)
+    eta = ETA_MAX
+    f_norm_prev = None
+    linear = backtracks = accelerated = 0
+    hist_x: list = []
+    hist_r: list = []
+    hist_h = None
+    residual = best = math.inf
+    k = best_k = 0
+    best_e = e0
+    history: list[float] = []
     for k in range(max_iterations + 1):
         if not np.all(np.isfinite(x)):
             raise DivergenceError(f"solve_static: non-finite positions after {k} Newton iterations")
         f = model.forces(x, zero, state.time)
         f[~free] = 0.0
         residual = float(np.max(np.linalg.norm(f[free], axis=1) / weight[free])) if free.any() else 0.0
-        fnorm = float(np.linalg.norm(f))
-        if verbose:
-            print(k, f"res {residual:.3e} h {h:.3g} E {e0} eta {eta:.2e} lin {linear}")
-        if residual <= tol or k == max_iterations:
+        history.append(residual)
+        if residual < best:
+            best, best_k, best_e = residual, k, e0
+        # Stalled: no better residual in STALL iterations, and the energy changed only by round-off.
+        stalled = k - best_k >= STALL and (e0 is None or abs(e0 - best_e) <= roundoff * scale0)
+        if residual <= tol or k == max_iterations or stalled:
             break
-        if linear_tol is None:
-            if fnorm_prev is not None:
-                eta_new = 0.9 * (fnorm / fnorm_prev) ** 2
-                if 0.9 * eta * eta > 0.1:
-                    eta_new = max(eta_new, 0.9 * eta * eta)
-                floor = ETA_SAFE * tol * G * mnorm / max(fnorm, 1e-300)
-                eta = min(max(eta_new, floor, 1e-10), 0.1)
-            integ.linear_solver.tol = eta
-        fnorm_prev = fnorm
-        state.particle_x.from_numpy(x.astype(np_float()))
-        xf, vf = state.particle_x, state.particle_v
-        if integ.system is not None:
-            integ._assemble(model, integ.system, xf, vf, state.time, h)
-            res = integ.linear_solver.solve(integ.system, atol=0.0)
-            linear += res.iterations
-            dx = h * integ.system.solution.to_numpy().astype(np.float64)
-        else:
-            integ.advance(
-                model, state, xf, vf, xo, vo, state.time, state.time, h, state.step_count + 1, False
-            )
-            dx = xo.to_numpy().astype(np.float64) - x
-        alpha = 1.0
-        if energy is not None:
-            slope = float(np.sum(f * dx))  # -dE/dalpha at 0
-            while True:
-                e1 = energy(x + alpha * dx)
-                if e1 <= e0 - 1e-4 * alpha * slope or abs(e1 - e0) <= 1e-13 * abs(e0) + 1e-300:
-                    break
-                if alpha < 1e-4:
-                    break
-                alpha *= 0.5
-            e0 = e1
-            if adapt:
-                if alpha == 1.0:
-                    h = min(h * GROW, h_max)
+        f_norm = float(np.linalg.norm(f))
+        if linear_tol is not None:
+            eta = linear_tol
+        elif f_norm_prev is not None:
+            new = 0.9 * (f_norm / f_norm_prev) ** 2
+            if 0.9 * eta * eta > 0.1:  # Eisenstat-Walker safeguard against a sudden decrease
+                new = max(new, 0.9 * eta * eta)
+            floor = ETA_FLOOR * tol * G * mass_norm / max(f_norm, 1e-300)
+            eta = min(max(new, floor), ETA_MAX)
+        f_norm_prev = f_norm
+        dx = _newton_step(model, state, integ, xf, vf, xo, vo, x, zero_f, h, eta)
+        if integ.last_solve is not None:
+            linear += integ.last_solve.iterations
+        if energy is None:
+            x = x + dx
+            continue
+
+        def acceptable(e, scale, slope, a):
+            return e <= e0 - ARMIJO * a * slope or abs(e - e0) <= roundoff * max(scale, scale0)
+
+        slope = float(np.sum(f * dx))  # -dE/da at a = 0
+        e_full, s_full = energy(x + dx)
+        step = None
+        if anderson:
+            if hist_h != h:
+                hist_x, hist_r = [], []
+            hist_x = [*hist_x[-ANDERSON_DEPTH:], x]
+            hist_r = [*hist_r[-ANDERSON_DEPTH:], dx]
+            hist_h = h
+            if len(hist_x) > 1:
+                dX = np.stack([(b - a).ravel() for a, b in zip(hist_x, hist_x[1:], strict=False)], 1)
+                dR = np.stack([(b - a).ravel() for a, b in zip(hist_r, hist_r[1:], strict=False)], 1)
+                gamma = np.linalg.lstsq(dR, dx.ravel(), rcond=None)[0]
+                x_aa = x + dx - ((dX + dR) @ gamma).reshape(x.shape)
+                e_aa, s_aa = energy(x_aa)
+                if e_aa <= e_full and acceptable(e_aa, s_aa, slope, 1.0):
+                    step = (x_aa, e_aa, s_aa)
+                    accelerated += 1
                 else:
-                    h = max(h * alpha**SHRINK, 1e-6)
-        history.append(alpha)
-        x = x + alpha * dx
+                    hist_x, hist_r = hist_x[-1:], hist_r[-1:]
+        a = 1.0
+        if step is None:
+            e1, s1 = e_full, s_full
+            while not acceptable(e1, s1, slope, a) and a > MIN_STEP:
+                a *= 0.5
+                e1, s1 = energy(x + a * dx)
+            step = (x + a * dx, e1, s1)
+            backtracks += a < 1.0
+        x, e0, scale0 = step
+        h = min(2.0 * h, h_max) if a == 1.0 else max(h * a, 1e-6)
     state.particle_x.from_numpy(x.astype(np_float()))
-    state.particle_v.from_numpy(zero.astype(np_float()))
-    return {"iterations": k, "residual": residual, "linear_iterations": linear, "h": h, "alphas": history}
+    state.particle_v.from_numpy(zero_f)
+    return {
+        "iterations": k,
+        "converged": residual <= tol,
+        "residual": residual,
+        "linear_iterations": linear,
+        "energy": e0,
+        "h": h,
+        "backtracks": backtracks,
+        "accelerated": accelerated,
+        "history": history,
+    }
+
+
+def _newton_step(model, state, integ, xf, vf, xo, vo, x, zero_f, h, eta) -> np.ndarray:
+    """dx of one regularised Newton step at positions x (N,3): (M / h^2 + (1 + beta / h) K) dx = f."""
+    xf.from_numpy(x.astype(np_float()))
+    vf.from_numpy(zero_f)
+    if integ.system is None:  # pointwise forces only: the integrator's 3x3 solves per particle
+        integ.advance(model, state, xf, vf, xo, vo, state.time, state.time, h, state.step_count + 1, False)
+        return xo.to_numpy().astype(np.float64) - x
+    integ.linear_solver.tol = eta
+    integ._assemble(model, integ.system, xf, vf, state.time, h)
+    integ.last_solve = integ.linear_solver.solve(integ.system, atol=0.0)
+    return h * integ.system.solution.to_numpy().astype(np.float64)
