@@ -104,12 +104,21 @@ def main() -> int:
     p.add_argument("--before", required=True, help="commit of the engine before the change")
     p.add_argument("--quick", action="store_true", help="small sizes, one round, writes benchmarks/out/")
     p.add_argument("--rounds", type=int, default=3)
+    p.add_argument(
+        "--cloth-sizes", type=int, nargs="*", default=None, help="grid sizes (default 32 64 128 256)"
+    )
+    p.add_argument("--particle-sizes", type=int, nargs="*", default=None, help="default 1e4 ... 1e7")
     args = p.parse_args()
     rounds = 1 if args.quick else args.rounds
     cloth_sizes = (32, 64) if args.quick else (32, 64, 128, 256)
     particle_sizes = (10_000,) if args.quick else (10_000, 100_000, 1_000_000, 10_000_000)
+    if args.cloth_sizes is not None:
+        cloth_sizes = tuple(args.cloth_sizes)
+    if args.particle_sizes is not None:
+        particle_sizes = tuple(args.particle_sizes)
     warmup, frames, steps = (3, 10, 100) if args.quick else (5, 40, 600)
     out_dir = ROOT / "benchmarks" / ("out" if args.quick else "results")
+    name = "regression" if args.cloth_sizes is None and args.particle_sizes is None else "regression_subset"
     out_dir.mkdir(parents=True, exist_ok=True)
     load_start = load_average()
     engine = engine_fingerprint()
@@ -173,8 +182,8 @@ def main() -> int:
     )
     text = (
         "# Before/after: explicit cloth and particles\n\n"
-        f"Command: `.venv/bin/python benchmarks/regression.py --before {args.before}"
-        f"{' --quick' if args.quick else ''}`. {rounds} rounds, engines alternating, each figure in a fresh "
+        f"Command: `.venv/bin/python {' '.join(sys.argv)}`.".replace(str(ROOT) + "/", "")
+        + f" {rounds} rounds, engines alternating, each figure in a fresh "
         f"process; cloth: median of {frames} frames after {warmup}; particles: {steps} steps after the pool "
         f"filled. Load average at start {load_start}, at end {load_average()}.\n\n{table}\n\n"
         + machine_table(
@@ -187,8 +196,8 @@ def main() -> int:
         )
         + "\n"
     )
-    (out_dir / "regression.md").write_text(text)
-    (out_dir / "regression.json").write_text(
+    (out_dir / f"{name}.md").write_text(text)
+    (out_dir / f"{name}.json").write_text(
         json.dumps({f"{k[0]} {k[1]} {k[2]}": v for k, v in res.items()}, indent=1)
     )
     print(text)

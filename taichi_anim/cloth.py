@@ -1,6 +1,7 @@
 """Cloth options: the material of a mass-spring sheet (Provot 1995's structural, shear and bend springs,
 lumped areal mass as in Baraff & Witkin 1998) and the record of a cloth added to a Builder."""
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,7 +51,8 @@ class FabricMaterial:
     """A continuum fabric: a StVK triangle membrane plus dihedral bending instead of springs, so the
     result converges as the mesh is refined. density [kg/m^2]; youngs_modulus [N/m] (areal: Young's
     modulus times thickness); poisson_ratio in [0, 0.5); bending_stiffness [N m] (E t^3 / (12 (1 - nu^2))
-    for a plate); damping, bending_damping [s]: Rayleigh (stiffness-proportional) damping. Optional
+    for a plate); damping, bending_damping [s]: Rayleigh (stiffness-proportional) damping (a membrane
+    damping beta also bounds explicit steps: see `explicit_step_limit`). Optional
     warp/weft anisotropy: youngs_warp, youngs_weft, shear_modulus [N/m] along warp_direction (projected
     on each triangle)."""
 
@@ -58,7 +60,7 @@ class FabricMaterial:
     youngs_modulus: float = 1.0e3
     poisson_ratio: float = 0.3
     bending_stiffness: float = 1.0e-4
-    damping: float = 1.0e-3
+    damping: float = 1.0e-4
     bending_damping: float = 1.0e-2
     youngs_warp: float | None = None
     youngs_weft: float | None = None
@@ -86,3 +88,12 @@ class FabricMaterial:
                 warp_direction=self.warp_direction,
             )
         return opts
+
+
+def explicit_step_limit(material: FabricMaterial, cell: float) -> float:
+    """Largest stable symplectic Euler step [s] for the membrane's fastest mode on a mesh of edge `cell`
+    [m]: omega = 2 c / cell with wave speed c = sqrt(E / density), damping ratio zeta = beta omega / 2
+    (Rayleigh), and the damped oscillator's limit dt < 2 (sqrt(1 + zeta^2) - zeta) / omega."""
+    omega = 2.0 * math.sqrt(material.youngs_modulus / material.density) / cell
+    zeta = 0.5 * material.damping * omega
+    return 2.0 * (math.sqrt(1.0 + zeta * zeta) - zeta) / omega

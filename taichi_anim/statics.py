@@ -16,7 +16,10 @@ uniform wind at v = 0; not aerodynamics). E(x) = the terms' energies (Model.ener
 E(x + a dx) <= E(x) - 1e-4 a f.dx, halving a from 1 (Nocedal & Wright, "Numerical Optimization", 2nd ed.
 2006, alg. 3.1); a change of E within round-off of its parts also passes (near the solution E no longer
 resolves progress). h is the Levenberg-Marquardt parameter: doubled (up to h_max) after a full step,
-multiplied by a after a step cut to a. Without a potential every step is taken whole at the given h.
+multiplied by a after a step cut to a. Without a potential (aerodynamics) the step is cut until the
+norm of the free forces decreases instead, with the same h rule: a heuristic only (the implicit system
+holds no aerodynamic Jacobian, and a sheet in wind may have no static state). line_search=False takes
+every step whole at the given h.
 
 Acceleration. Where a term projects its Hessian (springs' and the membrane's compression clamps, the
 Gauss-Newton bending Hessian), Newton converges only linearly: a hanging cloth's compressed top edge or
@@ -32,6 +35,10 @@ corners of one edge, f64 (benchmarks/results/cloth_continuum.md has the table): 
 iterations; this one reaches 1e-6 in about 120 iterations and 8,000 PCG iterations. A plane-stress
 problem without compression (a curtain hanging in its own plane) converges quadratically in 4 to 6
 iterations. Pinned particles stay where they are.
+
+The integrator and scratch fields are kept per model (weakly), so repeated solves of one model compile
+nothing; the Newton systems are assembled on those scratch fields, never on the state's, whose kernels
+would compile again for every new State.
 """
 
 import math
@@ -72,7 +79,7 @@ def _solver(model):
     return got
 
 
-def potential(model):
+def _potential(model):
     """E(x) -> (energy [J], round-off scale [J]) of every force at zero velocity, or None if one has no
     potential (a term without energy, e.g. aerodynamics)."""
     if any(not getattr(t, "has_energy", False) for t in model.element_terms):
@@ -142,7 +149,7 @@ def solve_static(
     free = masses > 0.0
     weight = np.maximum(masses, 1e-300) * G
     mass_norm = float(np.linalg.norm(masses[free]))
-    energy = potential(model) if line_search else None
+    energy = _potential(model) if line_search else None
     roundoff = 1e3 * float(np.finfo(np_float()).eps)  # relative noise of an energy sum
     zero = np.zeros((n, 3))
     zero_f = zero.astype(np_float())
@@ -185,13 +192,25 @@ def solve_static(
         if integ.last_solve is not None:
             linear += integ.last_solve.iterations
         if energy is None:
-            x = x + dx
+            a = 1.0
+            if line_search:  # no potential: cut the step until the force norm decreases
+                while a > MIN_STEP:
+                    trial = model.forces(x + a * dx, zero, state.time)
+                    trial[~free] = 0.0
+                    if np.linalg.norm(trial) <= (1.0 - ARMIJO * a) * f_norm:
+                        break
+                    a *= 0.5
+                backtracks += a < 1.0
+                h = min(2.0 * h, h_max) if a == 1.0 else max(h * a, 1e-6)
+            x = x + a * dx
             continue
 
-        def acceptable(e, scale, slope, a):
+        slope = float(np.sum(f * dx))  # -dE/da at a = 0
+
+        def acceptable(e, scale, a, e0=e0, scale0=scale0, slope=slope):
+            """Armijo's condition, or a change of E within round-off of its parts."""
             return e <= e0 - ARMIJO * a * slope or abs(e - e0) <= roundoff * max(scale, scale0)
 
-        slope = float(np.sum(f * dx))  # -dE/da at a = 0
         e_full, s_full = energy(x + dx)
         step = None
         if anderson:
@@ -206,7 +225,7 @@ def solve_static(
                 gamma = np.linalg.lstsq(dR, dx.ravel(), rcond=None)[0]
                 x_aa = x + dx - ((dX + dR) @ gamma).reshape(x.shape)
                 e_aa, s_aa = energy(x_aa)
-                if e_aa <= e_full and acceptable(e_aa, s_aa, slope, 1.0):
+                if e_aa <= e_full and acceptable(e_aa, s_aa, 1.0):
                     step = (x_aa, e_aa, s_aa)
                     accelerated += 1
                 else:
@@ -214,7 +233,7 @@ def solve_static(
         a = 1.0
         if step is None:
             e1, s1 = e_full, s_full
-            while not acceptable(e1, s1, slope, a) and a > MIN_STEP:
+            while not acceptable(e1, s1, a) and a > MIN_STEP:
                 a *= 0.5
                 e1, s1 = energy(x + a * dx)
             step = (x + a * dx, e1, s1)

@@ -9,7 +9,8 @@ import math
 
 import numpy as np
 
-from .. import Builder, ClothMaterial, FabricMaterial, make_integrator, validate
+from .. import Builder, ClothMaterial, FabricMaterial, make_integrator
+from ..cloth import explicit_step_limit, validate
 from .base import Scene
 
 FRAME_DT = 1 / 60  # [s]
@@ -41,8 +42,9 @@ def substeps_for(integrator: str, material, vertex_mass: float, cell: float = 0.
     if integrator in SELF_STABLE:
         return IMPLICIT_SUBSTEPS
     if isinstance(material, FabricMaterial):
-        # Membrane waves cross a cell in cell / c, c = sqrt(E / density): keep the step under 0.4 of it.
-        dt = 0.4 * cell / math.sqrt(material.youngs_modulus / material.density)
+        # The fastest membrane mode with its Rayleigh damping; a margin for bending and the mesh's
+        # deviation from the estimate.
+        dt = 0.5 * explicit_step_limit(material, cell)
         return max(IMPLICIT_SUBSTEPS, math.ceil(FRAME_DT / dt))
     families = [(getattr(material, f"{f}_stiffness"), getattr(material, f"{f}_damping")) for f in FAMILIES]
     k = max(kf for kf, _ in families)

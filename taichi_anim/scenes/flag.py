@@ -8,6 +8,7 @@ drag and lift against a gusting wind, stepped by linearised backward Euler with 
 import numpy as np
 
 from .. import Builder, FabricMaterial, make_integrator
+from ..cloth import explicit_step_limit
 from .base import Scene
 
 FRAME_DT = 1 / 60  # [s]
@@ -44,6 +45,7 @@ def build(
     nx = int(resolution)
     ny = max(2, round((nx - 1) * height / width) + 1)
     top = 2.5
+    material = fabric(youngs_modulus=youngs_modulus, bending_stiffness=bending_stiffness)
     b = Builder()
     b.add_force_gravity()
     cloth = b.add_cloth_grid(
@@ -51,7 +53,7 @@ def build(
         size=(width, height),
         resolution=(nx, ny),
         plane="xy",
-        material=fabric(youngs_modulus=youngs_modulus, bending_stiffness=bending_stiffness),
+        material=material,
         thickness=0.004,
         pinned=[j * nx for j in range(ny)],  # the left edge, on the pole
     )
@@ -62,11 +64,10 @@ def build(
     if integrator == "implicit_euler":
         integ = make_integrator(integrator, linear_solver="pcg", tol=1e-3, max_iterations=200)
         substeps = SUBSTEPS
-    else:  # explicit methods: a step under the membrane's wave-speed limit (~0.4 of cell / c)
+    else:  # explicit methods: half the membrane's damped stability limit
         integ = make_integrator(integrator, check_every=20)
-        cell = width / (nx - 1)
-        c = np.sqrt(youngs_modulus / 0.12)
-        substeps = max(SUBSTEPS, int(np.ceil(FRAME_DT / (0.4 * cell / c))))
+        limit = explicit_step_limit(material, width / (nx - 1))
+        substeps = max(SUBSTEPS, int(np.ceil(FRAME_DT / (0.5 * limit))))
     pole = (np.array([[0.0, top - 1.6 * height, 0.0]]), np.array([[0.0, top + 0.1, 0.0]]))
     lo, hi = (-0.1, top - 1.3 * height, -0.4 * width), (1.05 * width, top + 0.1, 0.4 * width)
     return Scene(
