@@ -162,7 +162,7 @@ def taichi_run(n: int, v: Variant, window: float) -> dict:
     t_emit = t_step = 0.0
     found, wanted = 0, 0
     for _ in range(k2):
-        want = min(int(em.s.rate * DT + em.carry), em.capacity)
+        want = min(int(em.s.rate * DT + state.emit_carry[em.index]), em.capacity)
         a = clock()
         model.emit(state, DT)
         b = clock()
@@ -172,7 +172,7 @@ def taichi_run(n: int, v: Variant, window: float) -> dict:
         state.step_count += 1
         t_emit += b - a
         t_step += c - b
-        got = int(em.found[None]) if want else 0
+        got = int(state.emit_found[em.index]) if want else 0
         found += got
         wanted += want
     state.check_finite()

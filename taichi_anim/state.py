@@ -46,6 +46,13 @@ class State:
         # One bit per slot, set while the slot is dead and not yet reused: emitters find free slots by
         # scanning 32 slots per word instead of one death time per slot.
         self.particle_free = ti.field(ti.u32, (n + 31) // 32) if self.has_lifetimes else None
+        # Emission: per emitter the fraction of a particle carried to the next step, the word its free-slot
+        # scan starts at, and the slots found this step (at the emitter's own slot range).
+        k = model.emitter_count
+        self.emit_carry = [0.0] * k
+        self.emit_cursor = ti.field(ti.i32, k) if k else None
+        self.emit_found = ti.field(ti.i32, k) if k else None
+        self.emit_slot = ti.field(ti.i32, n) if k else None
         self.trail_length = model.trail_length
         self.trail = ti.Vector.field(3, float, (n, self.trail_length)) if self.trail_length else None
         self.trail_head = 0

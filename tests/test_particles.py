@@ -200,3 +200,21 @@ def test_recycling_with_scattered_deaths_and_unaligned_pools():
     # Demand (3000/s x ~0.2 s) exceeds both pools, so no slot stays idle for a whole step: every slot is
     # alive or died within the last step (it is refilled at the start of the next one).
     assert np.all(state.particle_death.to_numpy() > state.time - 0.005)
+
+
+def test_two_states_of_one_model_emit_independently():
+    """The fractional-birth carry and the free-slot cursor belong to the state: stepping one state
+    does not change what another state of the same model emits (rate 50/s at dt = 1/60: 0.83 per step,
+    so the carry decides every step's count)."""
+    model, a = fountain(rate=50.0, capacity=200, lifetime=10.0)
+    integ = ta.make_integrator("symplectic_euler")
+    for _ in range(7):
+        integ.step(model, a, 1 / 60)
+    b = model.state()
+    counts = []
+    for _ in range(6):
+        integ.step(model, b, 1 / 60)
+        counts.append(int(b.alive_mask().sum()))
+    # floor(k * 50/60) particles after k steps, exactly as a fresh model's first state emits them
+    assert counts == [int(k * 50 / 60 + 1e-9) for k in range(1, 7)]
+    assert int(a.alive_mask().sum()) == int(7 * 50 / 60 + 1e-9)

@@ -93,16 +93,12 @@ class Emitter:
         self.capacity = settings.capacity
         self.index = index
         self.u, self.w = _basis(settings.direction)
-        self.slot = ti.field(ti.i32, self.capacity)
-        self.found = ti.field(ti.i32, ())
         end = start + self.capacity
         self.word_lo, self.word_hi = start >> 5, (end - 1) >> 5
         # Bits of the first and last word that belong to this emitter's slot range.
         self.mask_lo = (0xFFFFFFFF << (start & 31)) & 0xFFFFFFFF
         self.mask_hi = 0xFFFFFFFF >> (31 - ((end - 1) & 31))
         self.serial = serial_loops(self.capacity)
-        self.cursor = ti.field(ti.i32, ())  # word the next scan starts at (kept on the device: no sync)
-        self.carry = 0.0
 
     def settings(self) -> dict:
         d = asdict(self.s)
@@ -111,10 +107,11 @@ class Emitter:
         return d
 
     def emit(self, state, t: float, dt: float, seed: int, step: int) -> None:
-        """Spawn this step's particles at time t (they then live through the step)."""
-        want = self.s.rate * dt + self.carry
+        """Spawn this step's particles at time t (they then live through the step). The fraction of a
+        particle left over and the scan cursor are the state's (`State.emit_carry`, `emit_cursor`)."""
+        want = self.s.rate * dt + state.emit_carry[self.index]
         n = min(int(want), self.capacity)
-        self.carry = want - int(want)
+        state.emit_carry[self.index] = want - int(want)
         if n == 0:
             return
         self._emit(state, n, t, seed, step)
@@ -125,7 +122,7 @@ class Emitter:
         words = self.word_hi - self.word_lo + 1
         ti.loop_config(serialize=True)
         for _ in range(1):
-            cursor = self.cursor[None]
+            cursor = state.emit_cursor[self.index]
             found = 0
             scanned = 0
             while found < n and scanned < words:
@@ -138,17 +135,17 @@ class Emitter:
                 bits = state.particle_free[w] & mask
                 while bits != 0 and found < n:
                     low = bits & (~bits + ti.u32(1))  # lowest set bit
-                    self.slot[found] = w * 32 + _bit_index(low)
+                    state.emit_slot[self.start + found] = w * 32 + _bit_index(low)
                     found += 1
                     bits ^= low
                     state.particle_free[w] ^= low
                 if found < n:  # this word is used up: move on (else more may be free here)
                     cursor = (cursor + 1) % words
                     scanned += 1
-            self.found[None] = found
-            self.cursor[None] = cursor
+            state.emit_found[self.index] = found
+            state.emit_cursor[self.index] = cursor
         ti.loop_config(serialize=self.serial)
-        for j in range(self.found[None]):
+        for j in range(state.emit_found[self.index]):
             self._spawn_one(state, j, t, seed, step)
 
     @ti.func
@@ -182,7 +179,7 @@ class Emitter:
 
     @ti.func
     def _spawn_one(self, state: ti.template(), j, t, seed, step):
-        i = self.slot[j]
+        i = state.emit_slot[self.start + j]
         x, v, life = self._sample(seed, step, ti.cast(self.start + j, ti.u32))
         state.particle_x[i] = x
         state.particle_v[i] = v
