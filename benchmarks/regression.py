@@ -118,7 +118,7 @@ def main() -> int:
         particle_sizes = tuple(args.particle_sizes)
     warmup, frames, steps = (3, 10, 100) if args.quick else (5, 40, 600)
     out_dir = ROOT / "benchmarks" / ("out" if args.quick else "results")
-    name = "regression" if args.cloth_sizes is None and args.particle_sizes is None else "regression_subset"
+    page = "regression" if args.cloth_sizes is None and args.particle_sizes is None else "regression_subset"
     out_dir.mkdir(parents=True, exist_ok=True)
     load_start = load_average()
     engine = engine_fingerprint()
@@ -196,8 +196,8 @@ def main() -> int:
         )
         + "\n"
     )
-    (out_dir / f"{name}.md").write_text(text)
-    (out_dir / f"{name}.json").write_text(
+    (out_dir / f"{page}.md").write_text(text)
+    (out_dir / f"{page}.json").write_text(
         json.dumps({f"{k[0]} {k[1]} {k[2]}": v for k, v in res.items()}, indent=1)
     )
     print(text)
