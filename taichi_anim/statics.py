@@ -6,9 +6,10 @@ dx = h dv that is (M / h^2 + (1 + beta / h) K) dx = f: for a step h much longer 
 period the Newton step K dx = f, regularised by M / h^2 (Levenberg-Marquardt), with the terms' positive
 semi-definite stiffness K. It is solved by block-Jacobi PCG as an inexact Newton step: relative tolerance
 eta_k = 0.9 (|f_k| / |f_k-1|)^2 (Eisenstat & Walker, "Choosing the forcing terms in an inexact Newton
-method", SIAM J. Sci. Comput. 17(1), 1996, choice 2, with their safeguard), capped at 0.1 and floored at
-0.1 tol g |m| / |f|, so the last solves do not reduce the linear residual far below what the stopping test
-needs (2-norms over free particles).
+method", SIAM J. Sci. Comput. 17(1), 1996, choice 2, with their safeguard), capped at 0.1, and stopped
+at the absolute residual 0.1 tol g min(m) (2-norm over free particles: enough for the stopping test on
+the lightest particle), so the last solves do not reduce the linear residual further than the stopping
+test needs, nor iterate on a right-hand side at round-off.
 
 Globalisation (when every force has a potential: springs, membrane, bending, gravity, anchor springs,
 uniform wind at v = 0; not aerodynamics). E(x) = the terms' energies (Model.energy) - sum m g.x
@@ -133,8 +134,9 @@ def solve_static(
     force over m g), "linear_iterations", "energy" (J, None without a potential), "h" (the last),
     "backtracks" (steps cut by the line search), "accelerated" (Anderson steps taken), "converged"
     (residual <= tol), "history" (the residual before each iteration)}. It stops at tol, at max_iterations,
-    or when STALL (20) iterations lowered neither the best residual nor the energy beyond round-off (the
-    residual's floor at this precision: then "converged" is False).
+    when the Newton step is exactly 0 (the forces are below the linear solver's floor), or when STALL (20)
+    iterations lowered neither the best residual nor the energy beyond round-off (the residual's floor at
+    this precision; not with line_search=False); then "converged" is False.
     Raises DivergenceError if the iteration produces non-finite positions.
     """
     tol = validate.positive("tol", tol)
@@ -149,6 +151,7 @@ def solve_static(
     free = masses > 0.0
     weight = np.maximum(masses, 1e-300) * G
     mass_norm = float(np.linalg.norm(masses[free]))
+    mass_min = float(masses[free].min()) if free.any() else 0.0
     energy = _potential(model) if line_search else None
     roundoff = 1e3 * float(np.finfo(np_float()).eps)  # relative noise of an energy sum
     zero = np.zeros((n, 3))
@@ -174,8 +177,11 @@ def solve_static(
         history.append(residual)
         if residual < best:
             best, best_k, best_e = residual, k, e0
-        # Stalled: no better residual in STALL iterations, and the energy changed only by round-off.
-        stalled = k - best_k >= STALL and (e0 is None or abs(e0 - best_e) <= roundoff * scale0)
+        # Stalled: no better residual in STALL iterations, and the energy changed only by round-off
+        # (not with line_search=False: the method before the line search ran to max_iterations).
+        stalled = (
+            line_search and k - best_k >= STALL and (e0 is None or abs(e0 - best_e) <= roundoff * scale0)
+        )
         if residual <= tol or k == max_iterations or stalled:
             break
         f_norm = float(np.linalg.norm(f))
@@ -185,12 +191,16 @@ def solve_static(
             new = 0.9 * (f_norm / f_norm_prev) ** 2
             if 0.9 * eta * eta > 0.1:  # Eisenstat-Walker safeguard against a sudden decrease
                 new = max(new, 0.9 * eta * eta)
-            floor = ETA_FLOOR * tol * G * mass_norm / max(f_norm, 1e-300)
-            eta = min(max(new, floor), ETA_MAX)
+            eta = min(max(new, ETA_FLOOR * tol * G * mass_min / max(f_norm, 1e-300)), ETA_MAX)
         f_norm_prev = f_norm
-        dx = _newton_step(model, state, integ, xf, vf, xo, vo, x, zero_f, h, eta)
+        # [N] a linear residual (2-norm) small enough for the stopping test on the lightest particle; with a
+        # fixed linear_tol, the integrator's own floor
+        floor = ETA_FLOOR * tol * G * mass_min if linear_tol is None else linear_tol * G * mass_norm
+        dx = _newton_step(model, state, integ, xf, vf, xo, vo, x, zero_f, h, eta, floor)
         if integ.last_solve is not None:
             linear += integ.last_solve.iterations
+        if not np.any(dx):  # the force is below what the linear floor resolves: nothing left to do
+            break
         if energy is None:
             a = 1.0
             if line_search:  # no potential: cut the step until the force norm decreases
@@ -255,8 +265,10 @@ def solve_static(
     }
 
 
-def _newton_step(model, state, integ, xf, vf, xo, vo, x, zero_f, h, eta) -> np.ndarray:
-    """dx of one regularised Newton step at positions x (N,3): (M / h^2 + (1 + beta / h) K) dx = f."""
+def _newton_step(model, state, integ, xf, vf, xo, vo, x, zero_f, h, eta, floor) -> np.ndarray:
+    """dx of one regularised Newton step at positions x (N,3): (M / h^2 + (1 + beta / h) K) dx = f, by
+    PCG to the relative tolerance eta or the absolute residual `floor` [N] (the system's right-hand side
+    is h f: its floor is h floor), so a right-hand side at round-off does not iterate to the cap."""
     xf.from_numpy(x.astype(np_float()))
     vf.from_numpy(zero_f)
     if integ.system is None:  # pointwise forces only: the integrator's 3x3 solves per particle
@@ -264,5 +276,5 @@ def _newton_step(model, state, integ, xf, vf, xo, vo, x, zero_f, h, eta) -> np.n
         return xo.to_numpy().astype(np.float64) - x
     integ.linear_solver.tol = eta
     integ._assemble(model, integ.system, xf, vf, state.time, h)
-    integ.last_solve = integ.linear_solver.solve(integ.system, atol=0.0)
+    integ.last_solve = integ.linear_solver.solve(integ.system, atol=h * floor)
     return h * integ.system.solution.to_numpy().astype(np.float64)
