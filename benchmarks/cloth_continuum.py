@@ -553,7 +553,8 @@ def main() -> None:
         families={name: p["rows"] for name, p in parts.items()},
         exact=next(iter(parts.values()))["exact"],
         solves={
-            name: {k: v for k, v in p.items() if k not in ("rows", "families")} for name, p in parts.items()
+            name: {k: v for k, v in p.items() if k not in ("rows", "families") and not k.startswith("_")}
+            for name, p in parts.items()
         },
     )
 
