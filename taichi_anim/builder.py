@@ -90,7 +90,8 @@ class Builder:
     ) -> Cloth:
         """A rectangular cloth: resolution (nx, ny) vertices over size (w, h) [m] from origin [m], in the
         "xz" plane (horizontal; vertex (i, j) at origin + (i w/(nx-1), 0, j h/(ny-1))) or "xy" (vertical);
-        vertex (i, j) is particle start + j nx + i. Springs in Provot's grid layout; mass from the
+        vertex (i, j) is particle start + j nx + i. A ClothMaterial gives springs in Provot's grid layout,
+        a FabricMaterial a StVK membrane and dihedral bending instead; mass from the
         material's areal density; thickness [m]: collision radius of each vertex; pinned: grid vertex
         indices j nx + i that keep their velocity (kinematic); velocity [m/s] of every vertex at t = 0."""
         res = tuple(validate.count("resolution", r, 2) for r in np.atleast_1d(resolution))
@@ -132,7 +133,7 @@ class Builder:
         return self._add_cloth(vertices, triangles, springs, material, thickness, pinned, velocity)
 
     def add_springs(self, pairs, *, stiffness, damping=0.0, rest_length=None) -> None:
-        """Damped springs between particles (forces/springs.py): pairs (S,2) particle indices;
+        """Damped springs between particles (terms/springs.py): pairs (S,2) particle indices;
         stiffness [N/m] and damping [kg/s] scalars or (S,); rest_length [m] (S,), default the current
         distance. Springs count as the stretch family in reports."""
         n = self.particle_count
