@@ -25,6 +25,10 @@ turns by theta = kappa a exactly, with w = c^2 / (a c): E = (k/2) kappa^2 a c pe
 a known property of discrete shells: on an equilateral mesh cylindrical bending gets D/2 kappa^2 too
 (exactly about an edge direction, to O((kappa a)^2) otherwise), but a sphere gets 2/3 of the energy of a
 nu = 0 plate (the mesh acts as a plate with nu = -1/3; tests/test_term_bending.py measures both).
+These hold for prescribed (isometric) shapes. When the mesh is free to find its own minimum, square grid
+cells relax the hinge energy through a grid-scale zig-zag of the vertex heights: a clamped strip on square
+cells comes out ~22% softer than a plate of stiffness D (tip error +23% in the limit), while cells 4x
+longer along the bend match Euler-Bernoulli to first order (tests/test_continuum_statics.py).
 
 Force f = -k w (theta - theta0) g - beta k w g (g . v), the second part Rayleigh damping [s] with the
 stiffness K below, so it never adds energy. Linearised (Gauss-Newton): K = k w g g^T, rank one and
