@@ -198,13 +198,18 @@ class Model:
             self.element_terms[k].evaluate(caches[k], xf, vf, t, self.serial)
 
     @ti.func
+    def element_force(self, caches: ti.template(), i):
+        """Force on particle i from its elements, after element_pass."""
+        f = ti.Vector.zero(float, 3)
+        for k in ti.static(range(len(self.element_terms))):
+            f += self.element_terms[k].gather(caches[k], i)
+        return f
+
+    @ti.func
     def accel_total(self, caches: ti.template(), i, x, v, t):
         """Acceleration of particle i at (x, v, t): the pointwise terms plus, after element_pass, the
         forces of its elements."""
-        f = self.force(i, x, v, t)
-        for k in ti.static(range(len(self.element_terms))):
-            f += self.element_terms[k].gather(caches[k], i)
-        return f * self.inv_mass(i)
+        return (self.force(i, x, v, t) + self.element_force(caches, i)) * self.inv_mass(i)
 
     def make_caches(self, implicit: bool = False) -> tuple:
         """Scratch for one solver: a cache per element term (in element_terms order)."""
@@ -267,11 +272,4 @@ class _ForceProbe:
     ):
         model.element_pass(self.caches, xf, vf, t)
         for i in range(model.particle_count):
-            ff[i] = model.force(i, xf[i], vf[i], t) + self.gathered(model, i)
-
-    @ti.func
-    def gathered(self, model: ti.template(), i):
-        f = ti.Vector.zero(float, 3)
-        for k in ti.static(range(len(model.element_terms))):
-            f += model.element_terms[k].gather(self.caches[k], i)
-        return f
+            ff[i] = model.force(i, xf[i], vf[i], t) + model.element_force(self.caches, i)

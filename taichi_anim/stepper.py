@@ -41,12 +41,6 @@ class Stepper:
         opts = model.sphere_contacts
         self.contacts = None if opts is None else ContactSpheres(model, **opts)
 
-    def settings(self) -> dict:
-        out = {"integrator": self.integrator.settings()}
-        if self.contacts is not None:
-            out["sphere_contacts"] = self.contacts.settings()
-        return out
-
     def step(self, state, dt: float) -> None:
         dt = validate.positive("dt", dt)
         model, method = self.model, self.integrator

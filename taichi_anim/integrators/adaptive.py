@@ -17,6 +17,8 @@ from .base import Integrator, scratch_pairs
 class IntegratorAdaptive(Integrator):
     """Step doubling around any fixed-step base integrator (default RK4)."""
 
+    own_caches = False  # the base method evaluates the terms with its own caches
+
     def __init__(
         self,
         base: Integrator | str = "rk4",

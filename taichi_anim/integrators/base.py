@@ -36,6 +36,7 @@ class Integrator:
     order = 0
     stages = 1  # force evaluations per advance
     implicit = False  # whether element caches hold linearisations (implicit solves)
+    own_caches = True  # False for wrappers whose inner method evaluates the terms
 
     def __init__(
         self, *, collision_mode: CollisionMode | str = CollisionMode.PROJECTION, check_every: int = 1
@@ -55,7 +56,7 @@ class Integrator:
         if model is self.model:
             return
         self.model = model
-        self.caches = model.make_caches(implicit=self.implicit)
+        self.caches = model.make_caches(implicit=self.implicit) if self.own_caches else ()
         self._allocate(model)
 
     def _allocate(self, model) -> None:
