@@ -20,6 +20,13 @@ from .bounds import (
     sphere_overlap,
     sphere_triangle,
 )
+from .distance import (
+    point_segment_closest,
+    point_triangle_closest,
+    point_triangle_distance_sq,
+    point_triangle_feature,
+    segment_segment_closest,
+)
 
 __all__ = [
     "aabb_contains",
@@ -38,4 +45,9 @@ __all__ = [
     "sphere_edge",
     "sphere_overlap",
     "sphere_triangle",
+    "point_segment_closest",
+    "point_triangle_closest",
+    "point_triangle_distance_sq",
+    "point_triangle_feature",
+    "segment_segment_closest",
 ]
