@@ -27,8 +27,10 @@ from .distance import (
     point_triangle_feature,
     segment_segment_closest,
 )
+from .lbvh import BVH
 
 __all__ = [
+    "BVH",
     "aabb_contains",
     "aabb_edge",
     "aabb_merge",
