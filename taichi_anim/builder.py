@@ -27,6 +27,7 @@ class Builder:
         self._m: list[np.ndarray] = []
         self._r: list[np.ndarray] = []
         self._contacts: dict | None = None
+        self._self_contact: dict | None = None
         self._containers: list[tuple[np.ndarray, np.ndarray]] = []
         self._emitters: list[EmitterSettings] = []
         self._gravity: tuple | None = None
@@ -427,6 +428,39 @@ class Builder:
             neighbor_search=neighbor_search,
         )
 
+    def add_cloth_self_contact(
+        self,
+        *,
+        thickness: float | None = None,
+        friction: float = 0.0,
+        iterations: int = 8,
+        relaxation: float = 1.0,
+        bound_fraction: float = 0.4,
+        pairs_per_vertex: int = 64,
+    ) -> None:
+        """Contact between every cloth's triangles, within one cloth and between cloths
+        (collision/self_contact.py): non-adjacent vertex-triangle and edge-edge pairs are kept
+        `thickness` [m] apart (default: the largest cloth thickness), with Coulomb `friction`, by
+        `iterations` Jacobi sweeps of proximity constraints (each applying `relaxation` times the summed
+        corrections), and per-vertex displacement bounds (a `bound_fraction` < 1/2 of the distance to the
+        nearest primitive) let no step end with two triangles crossing. pairs_per_vertex: capacity of the
+        candidate lists."""
+        from .collision.self_contact import self_contact_options
+
+        if thickness is None:
+            if not self.cloths:
+                raise ParameterError("add_cloth_self_contact needs a cloth: add_cloth_grid/mesh first")
+            radii = np.concatenate(self._r)
+            thickness = max(float(radii[c.particles].max()) for c in self.cloths)
+        self._self_contact = self_contact_options(
+            thickness=thickness,
+            friction=friction,
+            iterations=iterations,
+            relaxation=relaxation,
+            bound_fraction=bound_fraction,
+            pairs_per_vertex=pairs_per_vertex,
+        )
+
     def add_particle_trails(self, length: int) -> None:
         """Keep the last `length` positions of every particle (exported as line sets)."""
         self._trail_length = validate.count("length", length, 2)
@@ -482,6 +516,8 @@ class Builder:
                 family=np.concatenate(cols[4]),
             )
         triangles = np.concatenate(self._triangles) if self._triangles else None
+        if self._self_contact is not None and triangles is None:
+            raise ParameterError("add_cloth_self_contact needs a cloth: add_cloth_grid or add_cloth_mesh")
         settings = {
             "particles": self.particle_count,
             "cloths": [
@@ -509,6 +545,7 @@ class Builder:
             springs=springs,
             element_terms=[make(len(x_all), x_all) for make in self._element_terms],
             triangles=triangles,
+            self_contact=self._self_contact,
         )
 
     def _contact_domain(self):

@@ -329,3 +329,34 @@ def _check_manifold(tris: np.ndarray, name: str) -> None:
             f"{name}: edge ({a}, {b}) is shared by {len(owners)} triangles {owners.tolist()} "
             "(non-manifold: at most 2)"
         )
+
+
+def box_mesh(lo, hi) -> tuple[np.ndarray, np.ndarray]:
+    """A closed axis-aligned box from lo to hi [m] as (vertices (8,3), triangles (12,3)), counter-clockwise
+    seen from outside (outward normals)."""
+    lo = np.asarray(validate.vec3("lo", lo))
+    hi = np.asarray(validate.vec3("hi", hi))
+    if np.any(hi <= lo):
+        raise ParameterError(f"hi must exceed lo on every axis, got lo={lo.tolist()}, hi={hi.tolist()}")
+    corner = np.array(list(itertools.product((0, 1), repeat=3)))  # index 4x + 2y + z
+    vertices = np.where(corner == 1, hi, lo)
+    faces = [
+        (0, 1, 3, 2),  # x = lo
+        (4, 6, 7, 5),  # x = hi
+        (0, 4, 5, 1),  # y = lo
+        (2, 3, 7, 6),  # y = hi
+        (0, 2, 6, 4),  # z = lo
+        (1, 5, 7, 3),  # z = hi
+    ]
+    triangles = [t for a, b, c, d in faces for t in ((a, b, c), (a, c, d))]
+    return vertices.astype(np.float64), np.array(triangles, dtype=np.int64)
+
+
+def merge_meshes(meshes) -> tuple[np.ndarray, np.ndarray]:
+    """One (vertices, triangles) from several, each mesh's indices shifted past the ones before."""
+    vertices, triangles, start = [], [], 0
+    for v, t in meshes:
+        vertices.append(np.asarray(v, dtype=np.float64))
+        triangles.append(np.asarray(t, dtype=np.int64) + start)
+        start += len(v)
+    return np.concatenate(vertices), np.concatenate(triangles)

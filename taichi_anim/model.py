@@ -34,6 +34,7 @@ class Model:
         springs=None,
         element_terms=None,
         triangles=None,
+        self_contact=None,
     ):
         n = len(x)
         self.particle_count = n
@@ -94,6 +95,10 @@ class Model:
         # Cloth triangles (F,3) over particle indices, for export and rendering only; None without cloth.
         self.triangles = None if triangles is None or len(triangles) == 0 else np.asarray(triangles)
         self.triangle_count = 0 if self.triangles is None else len(self.triangles)
+        # Cloth self-contact: the options the scene asked for, or None (the Stepper builds the solver).
+        self.self_contact = None if self_contact is None else MappingProxyType(dict(self_contact))
+        if self_contact is not None:
+            self.settings["self_contact"] = dict(self_contact)
         # Small scenes are launch-bound on the CPU: their particle loops run serially (compile-time).
         # A particle's work grows with its springs, which count towards the size.
         work = n + sum(t.entry_count for t in self.element_terms)

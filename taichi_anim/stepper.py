@@ -7,6 +7,7 @@ import taichi as ti
 
 from . import validate
 from .collision import collide
+from .collision.self_contact import SelfContact
 from .collision.spheres import ContactSpheres
 from .errors import ParameterError
 
@@ -40,6 +41,9 @@ class Stepper:
         # has sphere contacts.
         opts = model.sphere_contacts
         self.contacts = None if opts is None else ContactSpheres(model, **opts)
+        # Cloth self- and cloth-cloth contact (its hierarchies, pair lists and bounds), when asked for.
+        opts = model.self_contact
+        self.self_contact = None if opts is None else SelfContact(model, **opts)
 
     def step(self, state, dt: float) -> None:
         dt = validate.positive("dt", dt)
@@ -50,7 +54,7 @@ class Stepper:
             model.emit(state, dt)
         contacts = self.contacts
         if contacts is None:
-            method.advance_step(model, state, dt)
+            self._advance(state, dt)
         else:
             # Sphere contacts after every (sub)step; continuous contacts choose substeps from v_max.
             n = contacts.substeps(model, state, dt)
@@ -58,7 +62,7 @@ class Stepper:
             t0 = state.time
             for k in range(n):
                 state.time = t0 + k * h
-                method.advance_step(model, state, h)
+                self._advance(state, h)
                 contacts.solve(model, state, h, state.step_count + 1)
             state.time = t0
         if state.trail_length:
@@ -68,3 +72,15 @@ class Stepper:
         state.step_count += 1
         if state.step_count % method.check_every == 0:
             state.check_finite()
+            if self.self_contact is not None:
+                self.self_contact.read_stats()
+
+    def _advance(self, state, h: float) -> None:
+        """The method's step by h, then cloth self-contact on what it proposed."""
+        sc = self.self_contact
+        if sc is None:
+            self.integrator.advance_step(self.model, state, h)
+            return
+        sc.begin(self.model, state)
+        self.integrator.advance_step(self.model, state, h)
+        sc.solve(self.model, state, h)

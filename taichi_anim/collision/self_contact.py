@@ -1,0 +1,557 @@
+"""Cloth self-contact and cloth-cloth contact: proximity constraints within a thickness, then per-vertex
+displacement bounds that let no step end with a crossing.
+
+Runs after a method's step (any integrator: explicit, implicit, springs or membrane), on the step's start
+positions x0 (intersection-free) and its end positions x1:
+
+1. Proximity (Bridson, Fedkiw & Anderson, "Robust Treatment of Collisions, Contact and Friction for Cloth
+   Animation", SIGGRAPH 2002, sec. 7.1): every vertex-triangle and edge-edge pair of non-adjacent
+   primitives closer than the thickness at x1 is pushed apart along its closest-feature direction (the
+   side it had at x0), as a position-based constraint C = thickness - d >= 0 (Mueller et al., "Position
+   Based Dynamics", 2007, eq. 9 with the inverse masses weighted by the barycentric coordinates), with
+   Coulomb friction on the pair's tangential displacement (Macklin et al., "Unified Particle Physics for
+   Real-Time Applications", 2014, eq. 24). Corrections are mass-weighted and every pair's sum to zero
+   momentum; Jacobi iterations use one global relaxation factor, so the exchange stays equal and opposite.
+2. Displacement bounds (Chen et al., "Vertex Block Descent", SIGGRAPH 2024, sec. 3.7 / "Offset Geometric
+   Contact", 2025): vertex v may move at most b_v = gamma min(d_v, d_T for its triangles T, d_e for its
+   edges e) from x0, where d_v is v's distance to the nearest non-incident triangle, d_T the distance of
+   the nearest vertex to T, d_e of the nearest non-adjacent edge to e (all at x0). With gamma < 1/2 every
+   point of a pair at distance d moves less than d/2, so no pair can meet within the step: this is the
+   continuous guarantee, without a root-finding CCD pass, and it holds for any step a method proposes.
+   A vertex held by its bound keeps the velocity of the displacement it was allowed.
+
+Candidate pairs come from two bounding volume hierarchies (spatial/lbvh.py), over the triangles and the
+edges at x0, refit every step, each primitive's box grown by its reach: a vertex that moved m looks as
+far as r = max(m / gamma, 0.75 thickness + m), so every pair that could meet, or come within the
+thickness, is found, and far pairs cost nothing.
+"""
+
+import numpy as np
+import taichi as ti
+
+from .. import validate
+from ..errors import DivergenceError
+from ..runtime import data_oriented
+from ..spatial.distance import point_triangle_closest, segment_segment_closest
+from ..spatial.lbvh import BVH
+from .response import project_spheres
+
+# A pair found closer than this to zero distance has no direction of its own: it takes the direction it
+# had at the step's start, or the triangle's normal.
+TINY = 1e-12
+# Pairs kept for the proximity sweeps: those within this many thicknesses at the method's proposed end
+# positions (the sweeps move vertices by about a thickness at most).
+KEEP = 1.5
+# A guard pair whose sides moved, relative to each other, by this fraction of their distance at the step's
+# start is treated as one that could have met (a margin for round-off).
+SAFE = 0.9
+# Rounds of holding vertices of unsafe pairs before every vertex is held.
+HOLD_PASSES = 3
+
+
+def mesh_edges(triangles: np.ndarray) -> np.ndarray:
+    """(E,2) unique undirected edges (sorted pairs) of triangles (F,3)."""
+    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    return np.unique(np.sort(e, axis=1), axis=0)
+
+
+def incidence(items: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """CSR (start (count+1,), list) of the rows of `items` (K, arity) that hold each index < count."""
+    rows = np.repeat(np.arange(len(items)), items.shape[1])
+    order = np.argsort(items.reshape(-1), kind="stable")
+    start = np.zeros(count + 1, dtype=np.int64)
+    np.add.at(start, items.reshape(-1) + 1, 1)
+    return np.cumsum(start).astype(np.int32), rows[order].astype(np.int32)
+
+
+def _field(dtype, data: np.ndarray, n: int = 1):
+    f = ti.field(dtype, len(data)) if n == 1 else ti.Vector.field(n, dtype, len(data))
+    f.from_numpy(data)
+    return f
+
+
+@data_oriented
+class SelfContact:
+    """The contact solver for every cloth triangle of `model` (built by the Stepper when the scene asked
+    for self-contact). thickness [m]: the separation kept between non-adjacent primitives; friction:
+    Coulomb coefficient; iterations: Jacobi sweeps of the proximity constraints; relaxation: the global
+    factor of each sweep's summed corrections; bound_fraction gamma in (0, 0.5); pairs_per_vertex:
+    capacity of the candidate lists (an overflow raises rather than drop a contact)."""
+
+    def __init__(
+        self,
+        model,
+        *,
+        thickness: float,
+        friction: float,
+        iterations: int,
+        relaxation: float,
+        bound_fraction: float,
+        pairs_per_vertex: int,
+    ):
+        self.thickness = thickness
+        self.friction = friction
+        self.iterations = iterations
+        self.relaxation = relaxation
+        self.gamma = bound_fraction
+        tri_model = np.asarray(model.triangles, dtype=np.int64)
+        used = np.unique(tri_model)
+        local = np.full(model.particle_count, -1, dtype=np.int64)
+        local[used] = np.arange(len(used))
+        tri = local[tri_model]
+        edges = mesh_edges(tri)
+        nv, nf, ne = len(used), len(tri), len(edges)
+        self.vertex_count, self.triangle_count, self.edge_count = nv, nf, ne
+        self.vertex = _field(ti.i32, used.astype(np.int32))
+        self.tri = _field(ti.i32, tri.astype(np.int32), 3)
+        self.edge = _field(ti.i32, edges.astype(np.int32), 2)
+        vt_start, vt_list = incidence(tri, nv)
+        ve_start, ve_list = incidence(edges, nv)
+        self.vt_start, self.vt_list = _field(ti.i32, vt_start), _field(ti.i32, vt_list)
+        self.ve_start, self.ve_list = _field(ti.i32, ve_start), _field(ti.i32, ve_list)
+        self.x0 = ti.Vector.field(3, float, nv)
+        self.x_pred = ti.Vector.field(3, float, nv)
+        self.dx = ti.Vector.field(3, float, nv)
+        self.d_vert = ti.field(float, nv)
+        self.d_tri = ti.field(float, nf)
+        self.d_edge = ti.field(float, ne)
+        self.bound = ti.field(float, nv)
+        self.pair_count = ti.field(ti.i32, nv)
+        self.drift = ti.Vector.field(3, float, ())  # mean displacement of the free vertices this step
+        self.capacity = pairs_per_vertex * nv
+        self.vt_pair = ti.Vector.field(2, ti.i32, self.capacity)
+        self.ee_pair = ti.Vector.field(2, ti.i32, self.capacity)
+        # Guard pairs: every pair found within the two sides' reaches, with its distance at x0 [m].
+        self.vt_guard = ti.Vector.field(2, ti.i32, self.capacity)
+        self.ee_guard = ti.Vector.field(2, ti.i32, self.capacity)
+        self.vt_guard_d = ti.field(float, self.capacity)
+        self.ee_guard_d = ti.field(float, self.capacity)
+        self.hold = ti.field(ti.i32, nv)
+        # [0, 1] vertex-triangle and edge-edge proximity pairs of the last step; [2] vertex-steps held by
+        # their bound (a running total); [3] a sticky overflow flag; [4, 5] guard pairs of the last step;
+        # [6] steps that held every vertex (a running total); [7] violations in the current pass.
+        self.count = ti.field(ti.i32, 8)
+        self.reach = ti.field(float, nv)  # per vertex [m]: how far its queries look
+        self.tri_reach = ti.field(float, nf)
+        self.edge_reach = ti.field(float, ne)
+        self.tri_bvh = BVH(nf)
+        self.edge_bvh = BVH(ne)
+        self._built = False
+        # Made after ti.init, so `float` resolves to the chosen precision.
+        self._acc = ti.types.struct(x=ti.types.vector(3, float), r=float, d=float)
+        self.stats = {"vertex_triangle_pairs": 0, "edge_edge_pairs": 0, "clamped": 0}
+
+    def settings(self) -> dict:
+        return {
+            "thickness": self.thickness,
+            "friction": self.friction,
+            "iterations": self.iterations,
+            "relaxation": self.relaxation,
+            "bound_fraction": self.gamma,
+        }
+
+    # -- the step ---------------------------------------------------------------------------------------
+
+    def begin(self, model, state) -> None:
+        """Record the step's start positions (call before the method advances the state)."""
+        self._begin(state)
+
+    def solve(self, model, state, h: float) -> None:
+        """Proximity constraints and displacement bounds on the state a method just advanced by h [s]."""
+        self._boxes(model, state)
+        if self._built:
+            self.tri_bvh.update()
+            self.edge_bvh.update()
+        else:
+            self.tri_bvh.build(self.triangle_count)
+            self.edge_bvh.build(self.edge_count)
+            self._built = True
+        self._query()
+        if self.count[0] + self.count[1] > 0:  # one read: most steps of a falling cloth have no pairs
+            self._proximity(model, state)
+        self._finish(model, state, h)
+
+    def read_stats(self) -> dict:
+        """Pairs found in the last step, and vertex-steps held by their bound so far (reads
+        synchronise); raises if a candidate list overflowed."""
+        c = self.count.to_numpy()
+        if c[3]:
+            raise DivergenceError(
+                f"self-contact found more than {self.capacity} candidate pairs "
+                f"(pairs_per_vertex too small for this pile, or the cloth is exploding)"
+            )
+        self.stats = {"vertex_triangle_pairs": int(c[0]), "edge_edge_pairs": int(c[1]), "clamped": int(c[2])}
+        return self.stats
+
+    @ti.kernel
+    def _begin(self, state: ti.template()):
+        for v in range(self.vertex_count):
+            self.x0[v] = state.particle_x[self.vertex[v]]
+
+    @ti.kernel
+    def _boxes(self, model: ti.template(), state: ti.template()):
+        # The bounds hold in any frame that translates uniformly (distances do not change). Two frames
+        # are tried: the world's and the mean displacement of the free vertices (in which a sheet falling
+        # as a whole is held back by nothing, however fast); the one in which the vertices move less in
+        # total is used, so resting contacts keep the world frame.
+        total = ti.Vector.zero(float, 3)
+        free = 0
+        ti.loop_config(serialize=True)  # fixed summation orders: reproducible runs
+        for v in range(self.vertex_count):
+            i = self.vertex[v]
+            x = state.particle_x[i]
+            self.x_pred[v] = x
+            if model.inv_mass(i) > 0.0:
+                total += x - self.x0[v]
+                free += 1
+        mean = total / ti.max(free, 1)
+        still = 0.0
+        drifting = 0.0
+        ti.loop_config(serialize=True)
+        for v in range(self.vertex_count):
+            if model.inv_mass(self.vertex[v]) > 0.0:
+                d = self.x_pred[v] - self.x0[v]
+                still += d.norm()
+                drifting += (d - mean).norm()
+        self.drift[None] = ti.Vector.zero(float, 3)
+        if drifting < still:
+            self.drift[None] = mean
+        for v in range(self.vertex_count):
+            move = (self.x_pred[v] - self.x0[v] - self.drift[None]).norm()
+            # Reach: far enough that a vertex with nothing nearer is never held back (gamma r >= move),
+            # and that two primitives within KEEP thicknesses at the end are found (the reaches of a
+            # pair's two sides sum to at least KEEP thicknesses plus both displacements).
+            self.reach[v] = ti.max(move / self.gamma, 0.5 * KEEP * self.thickness + move)
+        for f in range(self.triangle_count):
+            t = self.tri[f]
+            a, b, c = self._tri_x0(f)
+            r = ti.max(self.reach[t[0]], self.reach[t[1]], self.reach[t[2]])
+            self.tri_reach[f] = r
+            self.tri_bvh.prim_lo[f] = ti.min(a, b, c) - r
+            self.tri_bvh.prim_hi[f] = ti.max(a, b, c) + r
+        for e in range(self.edge_count):
+            i, j = self.edge[e][0], self.edge[e][1]
+            p, q = self.x0[i], self.x0[j]
+            r = ti.max(self.reach[i], self.reach[j])
+            self.edge_reach[e] = r
+            self.edge_bvh.prim_lo[e] = ti.min(p, q) - r
+            self.edge_bvh.prim_hi[e] = ti.max(p, q) + r
+
+    @ti.func
+    def _tri_x0(self, f):
+        t = self.tri[f]
+        return self.x0[t[0]], self.x0[t[1]], self.x0[t[2]]
+
+    @ti.func
+    def _add_pair(self, kind: ti.template(), pair, d):
+        """Append to a list: kind 0, 1 the vertex-triangle / edge-edge proximity pairs, 4, 5 the guard
+        pairs (with their distance d)."""
+        k = ti.atomic_add(self.count[kind], 1)
+        if k < self.capacity:
+            if ti.static(kind == 0):
+                self.vt_pair[k] = pair
+            elif ti.static(kind == 1):
+                self.ee_pair[k] = pair
+            elif ti.static(kind == 4):
+                self.vt_guard[k] = pair
+                self.vt_guard_d[k] = d
+            else:
+                self.ee_guard[k] = pair
+                self.ee_guard_d[k] = d
+        else:
+            self.count[3] = 1
+
+    @ti.func
+    def _visit_triangle(self, v, f, ret: ti.template()):
+        t = self.tri[f]
+        if t[0] != v and t[1] != v and t[2] != v:
+            a, b, c = self._tri_x0(f)
+            w = point_triangle_closest(ret.x, a, b, c)
+            d = (ret.x - (w[0] * a + w[1] * b + w[2] * c)).norm()
+            # Any distance found is a true one, so taking the minimum with it can only tighten a bound.
+            ret.d = ti.min(ret.d, d)
+            ti.atomic_min(self.d_tri[f], d)
+            if d < ret.r + self.tri_reach[f]:
+                self._add_pair(4, ti.Vector([v, f]), d)
+                if self._close_at_end(v, t[0], t[1], t[2]):
+                    self._add_pair(0, ti.Vector([v, f]), d)
+
+    @ti.func
+    def _close_at_end(self, v, i, j, k):
+        """Whether vertex v is within KEEP thicknesses of triangle ijk at the proposed end positions."""
+        p = self.x_pred[v]
+        a, b, c = self.x_pred[i], self.x_pred[j], self.x_pred[k]
+        w = point_triangle_closest(p, a, b, c)
+        return (p - (w[0] * a + w[1] * b + w[2] * c)).norm() < KEEP * self.thickness
+
+    @ti.func
+    def _edges_close_at_end(self, a, b, c, d):
+        p0, p1, q0, q1 = self.x_pred[a], self.x_pred[b], self.x_pred[c], self.x_pred[d]
+        st = segment_segment_closest(p0, p1, q0, q1)
+        return ((p0 + st[0] * (p1 - p0)) - (q0 + st[1] * (q1 - q0))).norm() < KEEP * self.thickness
+
+    @ti.func
+    def _visit_edge(self, e, g, ret: ti.template()):
+        a, b = self.edge[e][0], self.edge[e][1]
+        c, d = self.edge[g][0], self.edge[g][1]
+        if g > e and a != c and a != d and b != c and b != d:
+            p0, p1, q0, q1 = self.x0[a], self.x0[b], self.x0[c], self.x0[d]
+            st = segment_segment_closest(p0, p1, q0, q1)
+            dist = ((p0 + st[0] * (p1 - p0)) - (q0 + st[1] * (q1 - q0))).norm()
+            ti.atomic_min(self.d_edge[e], dist)
+            ti.atomic_min(self.d_edge[g], dist)
+            if dist < ret.r + self.edge_reach[g]:
+                self._add_pair(5, ti.Vector([e, g]), dist)
+                if self._edges_close_at_end(a, b, c, d):
+                    self._add_pair(1, ti.Vector([e, g]), dist)
+
+    @ti.kernel
+    def _query(self):
+        for k in ti.static((0, 1, 4, 5)):
+            self.count[k] = 0
+        for f in range(self.triangle_count):
+            self.d_tri[f] = self.tri_reach[f]
+        for e in range(self.edge_count):
+            self.d_edge[e] = self.edge_reach[e]
+        # A pair (vertex v, triangle T) is visited when v's box, grown by its reach, overlaps T's box grown
+        # by T's: one that is not lies farther than r_v + r_T, more than both can move (gamma < 1/2).
+        for v in range(self.vertex_count):
+            r = self.reach[v]
+            ret = self._acc(x=self.x0[v], r=r, d=r)
+            self.tri_bvh.for_each_overlap(v, ret.x - r, ret.x + r, self._visit_triangle, ret)
+            self.d_vert[v] = ret.d
+        for e in range(self.edge_count):
+            p, q = self.x0[self.edge[e][0]], self.x0[self.edge[e][1]]
+            r = self.edge_reach[e]
+            ret = self._acc(x=p, r=r, d=r)
+            self.edge_bvh.for_each_overlap(e, ti.min(p, q) - r, ti.max(p, q) + r, self._visit_edge, ret)
+        for v in range(self.vertex_count):
+            d = self.d_vert[v]
+            for k in range(self.vt_start[v], self.vt_start[v + 1]):
+                d = ti.min(d, self.d_tri[self.vt_list[k]])
+            for k in range(self.ve_start[v], self.ve_start[v + 1]):
+                d = ti.min(d, self.d_edge[self.ve_list[k]])
+            # With nothing found, d = the vertex's reach and gamma * reach >= its displacement.
+            self.bound[v] = self.gamma * d
+        for k in ti.static((0, 1, 4, 5)):
+            self.count[k] = ti.min(self.count[k], self.capacity)
+        for v in range(self.vertex_count):
+            self.pair_count[v] = 0
+        for k in range(self.count[0]):
+            t = self.tri[self.vt_pair[k][1]]
+            ti.atomic_add(self.pair_count[self.vt_pair[k][0]], 1)
+            for j in ti.static(range(3)):
+                ti.atomic_add(self.pair_count[t[j]], 1)
+        for k in range(self.count[1]):
+            for j in ti.static(range(2)):
+                ti.atomic_add(self.pair_count[self.edge[self.ee_pair[k][0]][j]], 1)
+                ti.atomic_add(self.pair_count[self.edge[self.ee_pair[k][1]][j]], 1)
+
+    # -- proximity constraints ---------------------------------------------------------------------------
+
+    @ti.func
+    def _w(self, model: ti.template(), v):
+        return model.inv_mass(self.vertex[v])
+
+    @ti.func
+    def _pair_correction(self, model: ti.template(), state: ti.template(), idx, coef, side):
+        """Push the pair's two sides apart to the thickness: idx holds four local vertices, coef their
+        weights (positive on the first side, negative on the second, summing to zero), so the gap is
+        sum coef_k x_k; side is the unit direction from side two to side one at the step's start, the
+        fallback for a gap of zero length."""
+        gap = ti.Vector.zero(float, 3)
+        gap0 = ti.Vector.zero(float, 3)
+        for k in ti.static(range(4)):
+            gap += coef[k] * state.particle_x[self.vertex[idx[k]]]
+            gap0 += coef[k] * self.x0[idx[k]]
+        d = gap.norm()
+        n = side
+        if d > TINY:
+            n = gap / d
+            if n.dot(gap0) < 0.0:
+                n = -n  # crossed since the step's start: push back to the start's side
+                d = -d
+        c = self.thickness - d
+        if c > 0.0:
+            wsum = 0.0
+            for k in ti.static(range(4)):
+                wsum += self._w(model, idx[k]) * coef[k] * coef[k]
+            if wsum > 0.0:
+                # Jacobi averaging that keeps momentum: the pair's corrections are all scaled by one over
+                # the largest pair count among its vertices, so no vertex moves by more than the mean of
+                # what its pairs ask (stacked grids give a vertex six equal pairs), and they still cancel.
+                most = ti.max(
+                    ti.max(self.pair_count[idx[0]], self.pair_count[idx[1]]),
+                    ti.max(self.pair_count[idx[2]], self.pair_count[idx[3]]),
+                )
+                wsum *= ti.max(most, 1) / self.relaxation
+                s = c / wsum
+                # Friction: the pair's relative tangential motion over the step shrinks by at most mu c.
+                rel = gap - gap0
+                rel_t = rel - rel.dot(n) * n
+                slip = rel_t.norm()
+                cut = ti.min(self.friction * c, slip) / ti.max(slip, TINY) / wsum
+                for k in ti.static(range(4)):
+                    w = self._w(model, idx[k]) * coef[k]
+                    if w != 0.0:
+                        self.dx[idx[k]] += w * (s * n - cut * rel_t)
+
+    @ti.func
+    def _vertex_triangle(self, model: ti.template(), state: ti.template(), k):
+        v, f = self.vt_pair[k][0], self.vt_pair[k][1]
+        t = self.tri[f]
+        a = state.particle_x[self.vertex[t[0]]]
+        b = state.particle_x[self.vertex[t[1]]]
+        c = state.particle_x[self.vertex[t[2]]]
+        w = point_triangle_closest(state.particle_x[self.vertex[v]], a, b, c)
+        a0, b0, c0 = self._tri_x0(f)
+        side = (b0 - a0).cross(c0 - a0)
+        if side.dot(self.x0[v] - a0) < 0.0:
+            side = -side
+        side = side / ti.max(side.norm(), TINY)
+        idx = ti.Vector([v, t[0], t[1], t[2]])
+        coef = ti.Vector([1.0, -w[0], -w[1], -w[2]])
+        self._pair_correction(model, state, idx, coef, side)
+
+    @ti.func
+    def _edge_edge(self, model: ti.template(), state: ti.template(), k):
+        e, g = self.ee_pair[k][0], self.ee_pair[k][1]
+        i0, i1, j0, j1 = self.edge[e][0], self.edge[e][1], self.edge[g][0], self.edge[g][1]
+        st = segment_segment_closest(
+            state.particle_x[self.vertex[i0]],
+            state.particle_x[self.vertex[i1]],
+            state.particle_x[self.vertex[j0]],
+            state.particle_x[self.vertex[j1]],
+        )
+        idx = ti.Vector([i0, i1, j0, j1])
+        coef = ti.Vector([1.0 - st[0], st[0], -(1.0 - st[1]), -st[1]])
+        gap0 = coef[0] * self.x0[i0] + coef[1] * self.x0[i1] + coef[2] * self.x0[j0] + coef[3] * self.x0[j1]
+        side = (self.x0[i1] - self.x0[i0]).cross(self.x0[j1] - self.x0[j0])
+        if side.dot(gap0) < 0.0:
+            side = -side
+        side = side / ti.max(side.norm(), TINY)
+        self._pair_correction(model, state, idx, coef, side)
+
+    @ti.kernel
+    def _proximity(self, model: ti.template(), state: ti.template()):
+        # One serial task for all sweeps: float sums in a fixed order make runs reproducible, and one
+        # launch replaces three per sweep (each parallel loop costs tens of microseconds to start).
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            for _sweep in range(self.iterations):
+                for k in range(self.count[0]):
+                    self._vertex_triangle(model, state, k)
+                for k in range(self.count[1]):
+                    self._edge_edge(model, state, k)
+                for v in range(self.vertex_count):
+                    i = self.vertex[v]
+                    if self.dx[v].norm_sqr() > 0.0:
+                        x = state.particle_x[i] + self.dx[v]
+                        if ti.static(model.collider_count > 0):
+                            x, _v = project_spheres(
+                                model.colliders, x, state.particle_v[i], model.radius(i), -1.0
+                            )
+                        state.particle_x[i] = x
+                        self.dx[v] = ti.Vector.zero(float, 3)
+
+    @ti.func
+    def _moves_apart(self, state: ti.template(), i, j):
+        """|displacement of local vertex i - displacement of local vertex j| over the step [m]."""
+        di = state.particle_x[self.vertex[i]] - self.x0[i]
+        dj = state.particle_x[self.vertex[j]] - self.x0[j]
+        return (di - dj).norm()
+
+    @ti.func
+    def _violations(self, state: ti.template(), mark: ti.template()):
+        """Count the guard pairs that could have met in the step: a pair at distance d at x0 cannot meet
+        while every material point of one side moves less than d relative to every point of the other,
+        and those relative motions are convex combinations of the vertices' (max over vertex pairs).
+        With mark, their vertices are held."""
+        self.count[7] = 0
+        for k in range(self.count[4]):
+            v, f = self.vt_guard[k][0], self.vt_guard[k][1]
+            t = self.tri[f]
+            rel = ti.max(
+                self._moves_apart(state, v, t[0]),
+                self._moves_apart(state, v, t[1]),
+                self._moves_apart(state, v, t[2]),
+            )
+            if rel >= SAFE * self.vt_guard_d[k]:
+                self.count[7] += 1
+                if ti.static(mark):
+                    self.hold[v] = 1
+                    for j in ti.static(range(3)):
+                        self.hold[t[j]] = 1
+        for k in range(self.count[5]):
+            e, g = self.ee_guard[k][0], self.ee_guard[k][1]
+            a, b, c, d = self.edge[e][0], self.edge[e][1], self.edge[g][0], self.edge[g][1]
+            rel = ti.max(
+                ti.max(self._moves_apart(state, a, c), self._moves_apart(state, a, d)),
+                ti.max(self._moves_apart(state, b, c), self._moves_apart(state, b, d)),
+            )
+            if rel >= SAFE * self.ee_guard_d[k]:
+                self.count[7] += 1
+                if ti.static(mark):
+                    self.hold[a] = 1
+                    self.hold[b] = 1
+                    self.hold[c] = 1
+                    self.hold[d] = 1
+
+    @ti.func
+    def _clamp(self, model: ti.template(), state: ti.template(), last: ti.template()):
+        """Move held vertices back within their bound of the step's start, in the step's frame (the last
+        time: every vertex, if unsafe pairs are left); kinematic vertices (pinned, attached) go where
+        they are driven."""
+        for v in range(self.vertex_count):
+            i = self.vertex[v]
+            held = self.hold[v] == 1
+            if ti.static(last):
+                held = self.count[7] > 0
+            if held and model.inv_mass(i) > 0.0:
+                step = state.particle_x[i] - self.x0[v] - self.drift[None]
+                length = step.norm()
+                b = self.bound[v]
+                if length > b:
+                    state.particle_x[i] = self.x0[v] + self.drift[None] + step * (b / length)
+                    ti.atomic_add(self.count[2], 1)
+
+    @ti.kernel
+    def _finish(self, model: ti.template(), state: ti.template(), h: float):
+        for v in range(self.vertex_count):
+            self.hold[v] = 0
+        # Hold the vertices of pairs that could have met, re-check (holding one vertex can make a new
+        # pair fast), and after HOLD_PASSES hold every vertex: all held, every pair is safe (gamma < 1/2).
+        for _pass in ti.static(range(HOLD_PASSES)):
+            self._violations(state, True)
+            self._clamp(model, state, False)
+        self._violations(state, False)
+        if self.count[7] > 0:
+            self.count[6] += 1
+        self._clamp(model, state, True)
+        for v in range(self.vertex_count):
+            i = self.vertex[v]
+            x = state.particle_x[i]
+            if (x - self.x_pred[v]).norm_sqr() > 0.0:
+                # The corrections act as an inelastic impulse: the velocity keeps the method's update plus
+                # the displacement the contacts added.
+                state.particle_v[i] += (x - self.x_pred[v]) / h
+
+
+def self_contact_options(
+    *,
+    thickness: float,
+    friction: float = 0.0,
+    iterations: int = 8,
+    relaxation: float = 1.0,
+    bound_fraction: float = 0.4,
+    pairs_per_vertex: int = 64,
+) -> dict:
+    """Validated options of `SelfContact` (the Builder's add_cloth_self_contact)."""
+    return dict(
+        thickness=validate.positive("thickness", thickness),
+        friction=validate.non_negative("friction", friction),
+        iterations=validate.count("iterations", iterations, 1),
+        relaxation=validate.in_range("relaxation", relaxation, 1e-3, 2.0),
+        bound_fraction=validate.in_range("bound_fraction", bound_fraction, 1e-3, 0.49),
+        pairs_per_vertex=validate.count("pairs_per_vertex", pairs_per_vertex, 1),
+    )
