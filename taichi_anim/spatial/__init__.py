@@ -1,7 +1,60 @@
 """Geometry for collision detection: bounding volumes, exact primitives (distances, intersections,
 continuous tests) and hierarchies (a linear BVH, an octree) with their queries."""
 
-# hierarchies and mesh queries
-from .lbvh import BVH, box_area, box_overlap, box_point_dist2, box_segment_entry, morton3  # noqa: F401
-from .octree import Octree  # noqa: F401
-from .tri_grid import TriGrid  # noqa: F401
+# Bounding volumes and exact primitives (`@ti.func`s).
+from .bounds import (
+    aabb_contains,
+    aabb_edge,
+    aabb_merge,
+    aabb_overlap,
+    aabb_point,
+    aabb_point_distance_sq,
+    aabb_ray,
+    aabb_sphere_overlap,
+    aabb_surface_area,
+    aabb_swept_edge,
+    aabb_swept_point,
+    aabb_swept_triangle,
+    aabb_triangle,
+    sphere_edge,
+    sphere_overlap,
+    sphere_triangle,
+)
+from .distance import (
+    point_segment_closest,
+    point_triangle_closest,
+    point_triangle_distance_sq,
+    point_triangle_feature,
+    segment_segment_closest,
+)
+
+__all__ = [
+    "aabb_contains",
+    "aabb_edge",
+    "aabb_merge",
+    "aabb_overlap",
+    "aabb_point",
+    "aabb_point_distance_sq",
+    "aabb_ray",
+    "aabb_sphere_overlap",
+    "aabb_surface_area",
+    "aabb_swept_edge",
+    "aabb_swept_point",
+    "aabb_swept_triangle",
+    "aabb_triangle",
+    "sphere_edge",
+    "sphere_overlap",
+    "sphere_triangle",
+    "point_segment_closest",
+    "point_triangle_closest",
+    "point_triangle_distance_sq",
+    "point_triangle_feature",
+    "segment_segment_closest",
+]
+
+# Hierarchies over boxes and mesh queries.
+from .lbvh import BVH, morton3  # noqa: E402
+from .octree import Octree  # noqa: E402
+from .tri_grid import TriGrid  # noqa: E402
+
+__all__ += ["BVH", "Octree", "TriGrid", "morton3"]

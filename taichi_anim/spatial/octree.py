@@ -24,7 +24,7 @@ from .. import validate
 from ..collision.prefix_sum import PrefixSum
 from ..errors import ParameterError
 from ..runtime import data_oriented, serial_loops
-from .lbvh import box_overlap, box_point_dist2
+from .bounds import aabb_overlap, aabb_point_distance_sq
 
 MAX_LEVEL = 16  # 2^16 cells per axis at the finest level; the cell coordinates stay well inside i32
 LEVELS = MAX_LEVEL + 1
@@ -196,7 +196,7 @@ class Octree:
     def _walk(self, i, lo, hi, q, test: ti.template(), visit: ti.template(), ret: ti.template()):
         """visit(i, prim, ret) for each object whose stored box passes test(q, box_lo, box_hi), among
         the objects whose loose cells meet the box [lo, hi]."""
-        if self.count[None] > 0 and box_overlap(lo, hi, self.root_box[0], self.root_box[1]):
+        if self.count[None] > 0 and aabb_overlap(lo, hi, self.root_box[0], self.root_box[1]):
             for level in range(LEVELS):
                 if self.level_count[level] > 0:
                     m = ti.cast((1 << level) - 1, float)
@@ -229,11 +229,11 @@ class Octree:
     def _test_box(self, q, lo, hi):
         q_lo = ti.Vector([q[0, 0], q[0, 1], q[0, 2]])
         q_hi = ti.Vector([q[1, 0], q[1, 1], q[1, 2]])
-        return box_overlap(lo, hi, q_lo, q_hi)
+        return aabb_overlap(lo, hi, q_lo, q_hi)
 
     @ti.func
     def _test_sphere(self, q, lo, hi):
-        return box_point_dist2(lo, hi, ti.Vector([q[0], q[1], q[2]])) <= q[3]
+        return aabb_point_distance_sq(lo, hi, ti.Vector([q[0], q[1], q[2]])) <= q[3]
 
     @ti.func
     def for_each_overlap(self, i, lo, hi, visit: ti.template(), ret: ti.template()):
