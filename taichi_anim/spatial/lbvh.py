@@ -186,12 +186,19 @@ class BVH:
             self.count[None] = n
             self._centre_box[0] = ti.Vector([ti.math.inf] * 3, float)
             self._centre_box[1] = ti.Vector([-ti.math.inf] * 3, float)
+        # Box of the centres: min/max per block of SORT_BLOCK, then one atomic per block (atomics on
+        # one address from every element serialise the threads; min/max are order-independent).
         ti.loop_config(serialize=self._serial)
-        for k in range(n):
-            c = 0.5 * (self.prim_lo[k] + self.prim_hi[k])
+        for b in range((n + SORT_BLOCK - 1) // SORT_BLOCK):
+            lo = ti.Vector([ti.math.inf] * 3, float)
+            hi = ti.Vector([-ti.math.inf] * 3, float)
+            for k in range(b * SORT_BLOCK, ti.min(n, (b + 1) * SORT_BLOCK)):
+                c = 0.5 * (self.prim_lo[k] + self.prim_hi[k])
+                lo = ti.min(lo, c)
+                hi = ti.max(hi, c)
             for a in ti.static(range(3)):
-                ti.atomic_min(self._centre_box[0][a], c[a])  # min/max atomics are order-independent
-                ti.atomic_max(self._centre_box[1][a], c[a])
+                ti.atomic_min(self._centre_box[0][a], lo[a])
+                ti.atomic_max(self._centre_box[1][a], hi[a])
         ti.loop_config(serialize=self._serial)
         for k in range(n):
             lo = self._centre_box[0]
