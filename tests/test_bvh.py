@@ -10,7 +10,8 @@ import taichi as ti
 
 import taichi_anim as ta
 from taichi_anim import ParameterError
-from taichi_anim.spatial import BVH, box_segment_entry
+from taichi_anim.spatial import BVH, aabb_ray
+from taichi_anim.spatial.lbvh import ray_inv_dir
 
 MAX_HITS = 2048
 
@@ -67,7 +68,8 @@ class Collector:
             o = ti.Vector([a[i, 0], a[i, 1], a[i, 2]], float)
             d = ti.Vector([b[i, 0], b[i, 1], b[i, 2]], float)
             for k in range(n):
-                if box_segment_entry(self.tree.prim_lo[k], self.tree.prim_hi[k], o, d, t[i]) >= 0.0:
+                hit, _ = aabb_ray(self.tree.prim_lo[k], self.tree.prim_hi[k], o, ray_inv_dir(d), t[i])
+                if hit:
                     self.visit(i, k, acc)
             self.count[i] = acc
 

@@ -53,3 +53,10 @@ __all__ = [
     "point_triangle_feature",
     "segment_segment_closest",
 ]
+
+# Hierarchies over boxes and mesh queries.
+from .lbvh import BVH, morton3  # noqa: E402
+from .octree import Octree  # noqa: E402
+from .tri_grid import TriGrid  # noqa: E402
+
+__all__ += ["BVH", "Octree", "TriGrid", "morton3"]

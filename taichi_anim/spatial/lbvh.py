@@ -40,6 +40,7 @@ from .. import validate
 from ..collision.prefix_sum import PrefixSum
 from ..errors import ParameterError
 from ..runtime import data_oriented, serial_loops
+from .bounds import INV_DIR_PARALLEL, aabb_overlap, aabb_point_distance_sq, aabb_ray, aabb_surface_area
 
 STACK_SIZE = 64
 MORTON_BITS_PER_AXIS = 10
@@ -53,48 +54,15 @@ REBUILD_RATIO = 1.5
 
 
 @ti.func
-def box_area(lo, hi):
-    """Surface area of the box [lo, hi] [m^2] (0 for a degenerate box)."""
-    e = ti.max(hi - lo, 0.0)
-    return 2.0 * (e[0] * e[1] + e[1] * e[2] + e[2] * e[0])
-
-
-@ti.func
-def box_overlap(lo_a, hi_a, lo_b, hi_b):
-    """Whether the closed boxes [lo_a, hi_a] and [lo_b, hi_b] share a point (touching counts)."""
-    return (lo_a <= hi_b).all() and (lo_b <= hi_a).all()
-
-
-@ti.func
-def box_point_dist2(lo, hi, p):
-    """Squared distance [m^2] from point p to the closed box [lo, hi] (0 inside)."""
-    e = ti.max(lo - p, 0.0) + ti.max(p - hi, 0.0)
-    return e.dot(e)
-
-
-@ti.func
-def box_segment_entry(lo, hi, o, d, t_max):
-    """Smallest t in [0, t_max] with o + t d in the closed box [lo, hi], or -1 if the segment misses it.
-
-    Slab test (Kay & Kajiya 1986) without dividing by zero: an axis with d = 0 only constrains the
-    start point. Used as a conservative filter: exact primitive tests decide the hits."""
-    t0 = 0.0
-    t1 = ti.cast(t_max, float)
-    hit = True
+def ray_inv_dir(d):
+    """1 / d per component for `bounds.aabb_ray`, with a zero component mapped past INV_DIR_PARALLEL
+    (so no division by zero, whatever fast-math does with infinities)."""
+    inv = ti.Vector([0.0, 0.0, 0.0], float)
     for a in ti.static(range(3)):
-        if d[a] == 0.0:
-            if o[a] < lo[a] or o[a] > hi[a]:
-                hit = False
-        else:
-            inv = 1.0 / d[a]
-            ta = (lo[a] - o[a]) * inv
-            tb = (hi[a] - o[a]) * inv
-            t0 = ti.max(t0, ti.min(ta, tb))
-            t1 = ti.min(t1, ti.max(ta, tb))
-    out = -1.0
-    if hit and t0 <= t1:
-        out = t0
-    return out
+        inv[a] = 4.0 * INV_DIR_PARALLEL
+        if ti.abs(d[a]) * (4.0 * INV_DIR_PARALLEL) > 1.0:
+            inv[a] = 1.0 / d[a]
+    return inv
 
 
 @ti.func
@@ -218,12 +186,19 @@ class BVH:
             self.count[None] = n
             self._centre_box[0] = ti.Vector([ti.math.inf] * 3, float)
             self._centre_box[1] = ti.Vector([-ti.math.inf] * 3, float)
+        # Box of the centres: min/max per block of SORT_BLOCK, then one atomic per block (atomics on
+        # one address from every element serialise the threads; min/max are order-independent).
         ti.loop_config(serialize=self._serial)
-        for k in range(n):
-            c = 0.5 * (self.prim_lo[k] + self.prim_hi[k])
+        for b in range((n + SORT_BLOCK - 1) // SORT_BLOCK):
+            lo = ti.Vector([ti.math.inf] * 3, float)
+            hi = ti.Vector([-ti.math.inf] * 3, float)
+            for k in range(b * SORT_BLOCK, ti.min(n, (b + 1) * SORT_BLOCK)):
+                c = 0.5 * (self.prim_lo[k] + self.prim_hi[k])
+                lo = ti.min(lo, c)
+                hi = ti.max(hi, c)
             for a in ti.static(range(3)):
-                ti.atomic_min(self._centre_box[0][a], c[a])  # min/max atomics are order-independent
-                ti.atomic_max(self._centre_box[1][a], c[a])
+                ti.atomic_min(self._centre_box[0][a], lo[a])
+                ti.atomic_max(self._centre_box[1][a], hi[a])
         ti.loop_config(serialize=self._serial)
         for k in range(n):
             lo = self._centre_box[0]
@@ -368,13 +343,13 @@ class BVH:
                         self.node_lo[parent] = lo
                         self.node_hi[parent] = hi
                         self.node_cost[parent] = (
-                            box_area(lo, hi) + self._child_cost(ab[0]) + self._child_cost(ab[1])
+                            aabb_surface_area(lo, hi) + self._child_cost(ab[0]) + self._child_cost(ab[1])
                         )
                         node = parent
         for _ in range(1):
             q = 0.0
             if n > 1:
-                area = box_area(self.node_lo[0], self.node_hi[0])
+                area = aabb_surface_area(self.node_lo[0], self.node_hi[0])
                 if area > 0.0:
                     q = self.node_cost[0] / area
             self.quality[None] = q
@@ -423,13 +398,13 @@ class BVH:
         out = -1.0
         q_lo = ti.Vector([q[0, 0], q[0, 1], q[0, 2]])
         q_hi = ti.Vector([q[1, 0], q[1, 1], q[1, 2]])
-        if box_overlap(lo, hi, q_lo, q_hi):
+        if aabb_overlap(lo, hi, q_lo, q_hi):
             out = 0.0
         return out
 
     @ti.func
     def _score_sphere(self, q, lo, hi, ret: ti.template()):
-        d2 = box_point_dist2(lo, hi, ti.Vector([q[0], q[1], q[2]]))
+        d2 = aabb_point_distance_sq(lo, hi, ti.Vector([q[0], q[1], q[2]]))
         out = -1.0
         if d2 <= q[3]:
             out = d2
@@ -438,8 +413,12 @@ class BVH:
     @ti.func
     def _score_ray(self, q, lo, hi, ret: ti.template()):
         o = ti.Vector([q[0, 0], q[0, 1], q[0, 2]])
-        d = ti.Vector([q[1, 0], q[1, 1], q[1, 2]])
-        return box_segment_entry(lo, hi, o, d, q[2, 0])
+        inv_d = ti.Vector([q[1, 0], q[1, 1], q[1, 2]])
+        hit, t = aabb_ray(lo, hi, o, inv_d, q[2, 0])
+        out = -1.0
+        if hit:
+            out = t
+        return out
 
     @ti.func
     def for_each_overlap(self, i, lo, hi, visit: ti.template(), ret: ti.template()):
@@ -456,6 +435,6 @@ class BVH:
     @ti.func
     def for_each_ray(self, i, o, d, t_max, visit: ti.template(), ret: ti.template()):
         """visit(i, prim, ret) for every primitive whose box the segment o + t d, t in [0, t_max],
-        touches (slab test, `box_segment_entry`); nearer boxes first."""
-        q = ti.Matrix.rows([ti.cast(o, float), ti.cast(d, float), ti.Vector([t_max, 0.0, 0.0], float)])
+        touches (slab test, `bounds.aabb_ray`); nearer boxes first."""
+        q = ti.Matrix.rows([ti.cast(o, float), ray_inv_dir(d), ti.Vector([t_max, 0.0, 0.0], float)])
         self.traverse(i, q, self._score_ray, visit, ret)
