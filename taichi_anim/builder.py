@@ -441,8 +441,8 @@ class Builder:
         """Contact between every cloth's triangles, within one cloth and between cloths
         (collision/self_contact.py): non-adjacent vertex-triangle and edge-edge pairs are kept
         `thickness` [m] apart (default: the largest cloth thickness), with Coulomb `friction`, by
-        `iterations` Jacobi sweeps of proximity constraints (each applying `relaxation` times the summed
-        corrections), and per-vertex displacement bounds (a `bound_fraction` < 1/2 of the distance to the
+        `iterations` Gauss-Seidel sweeps of proximity constraints (each pair's correction times
+        `relaxation`), and per-vertex displacement bounds (a `bound_fraction` < 1/2 of the distance to the
         nearest primitive) let no step end with two triangles crossing. pairs_per_vertex: capacity of the
         candidate lists."""
         from .collision.self_contact import self_contact_options

@@ -11,7 +11,8 @@ positions x0 (intersection-free) and its end positions x1:
    Based Dynamics", 2007, eq. 9 with the inverse masses weighted by the barycentric coordinates), with
    Coulomb friction on the pair's tangential displacement (Macklin et al., "Unified Particle Physics for
    Real-Time Applications", 2014, eq. 24). Corrections are mass-weighted and every pair's sum to zero
-   momentum; Jacobi iterations use one global relaxation factor, so the exchange stays equal and opposite.
+   momentum, so the exchange is equal and opposite; they are applied in Gauss-Seidel sweeps in a fixed
+   order (reproducible).
 2. Displacement bounds (Chen et al., "Vertex Block Descent", SIGGRAPH 2024, sec. 3.7 / "Offset Geometric
    Contact", 2025): vertex v may move at most b_v = gamma min(d_v, d_T for its triangles T, d_e for its
    edges e) from x0, where d_v is v's distance to the nearest non-incident triangle, d_T the distance of
@@ -74,8 +75,8 @@ def _field(dtype, data: np.ndarray, n: int = 1):
 class SelfContact:
     """The contact solver for every cloth triangle of `model` (built by the Stepper when the scene asked
     for self-contact). thickness [m]: the separation kept between non-adjacent primitives; friction:
-    Coulomb coefficient; iterations: Jacobi sweeps of the proximity constraints; relaxation: the global
-    factor of each sweep's summed corrections; bound_fraction gamma in (0, 0.5); pairs_per_vertex:
+    Coulomb coefficient; iterations: Gauss-Seidel sweeps of the proximity constraints; relaxation: the
+    factor applied to each pair's correction (over-relaxation above 1); bound_fraction gamma in (0, 0.5); pairs_per_vertex:
     capacity of the candidate lists (an overflow raises rather than drop a contact)."""
 
     def __init__(
@@ -111,12 +112,10 @@ class SelfContact:
         self.ve_start, self.ve_list = _field(ti.i32, ve_start), _field(ti.i32, ve_list)
         self.x0 = ti.Vector.field(3, float, nv)
         self.x_pred = ti.Vector.field(3, float, nv)
-        self.dx = ti.Vector.field(3, float, nv)
         self.d_vert = ti.field(float, nv)
         self.d_tri = ti.field(float, nf)
         self.d_edge = ti.field(float, ne)
         self.bound = ti.field(float, nv)
-        self.pair_count = ti.field(ti.i32, nv)
         self.drift = ti.Vector.field(3, float, ())  # mean displacement of the free vertices this step
         self.capacity = pairs_per_vertex * nv
         self.vt_pair = ti.Vector.field(2, ti.i32, self.capacity)
@@ -335,17 +334,6 @@ class SelfContact:
             self.bound[v] = self.gamma * d
         for k in ti.static((0, 1, 4, 5)):
             self.count[k] = ti.min(self.count[k], self.capacity)
-        for v in range(self.vertex_count):
-            self.pair_count[v] = 0
-        for k in range(self.count[0]):
-            t = self.tri[self.vt_pair[k][1]]
-            ti.atomic_add(self.pair_count[self.vt_pair[k][0]], 1)
-            for j in ti.static(range(3)):
-                ti.atomic_add(self.pair_count[t[j]], 1)
-        for k in range(self.count[1]):
-            for j in ti.static(range(2)):
-                ti.atomic_add(self.pair_count[self.edge[self.ee_pair[k][0]][j]], 1)
-                ti.atomic_add(self.pair_count[self.edge[self.ee_pair[k][1]][j]], 1)
 
     # -- proximity constraints ---------------------------------------------------------------------------
 
@@ -377,24 +365,16 @@ class SelfContact:
             for k in ti.static(range(4)):
                 wsum += self._w(model, idx[k]) * coef[k] * coef[k]
             if wsum > 0.0:
-                # Jacobi averaging that keeps momentum: the pair's corrections are all scaled by one over
-                # the largest pair count among its vertices, so no vertex moves by more than the mean of
-                # what its pairs ask (stacked grids give a vertex six equal pairs), and they still cancel.
-                most = ti.max(
-                    ti.max(self.pair_count[idx[0]], self.pair_count[idx[1]]),
-                    ti.max(self.pair_count[idx[2]], self.pair_count[idx[3]]),
-                )
-                wsum *= ti.max(most, 1) / self.relaxation
-                s = c / wsum
+                s = self.relaxation * c / wsum
                 # Friction: the pair's relative tangential motion over the step shrinks by at most mu c.
                 rel = gap - gap0
                 rel_t = rel - rel.dot(n) * n
                 slip = rel_t.norm()
-                cut = ti.min(self.friction * c, slip) / ti.max(slip, TINY) / wsum
+                cut = self.relaxation * ti.min(self.friction * c, slip) / ti.max(slip, TINY) / wsum
                 for k in ti.static(range(4)):
                     w = self._w(model, idx[k]) * coef[k]
                     if w != 0.0:
-                        self.dx[idx[k]] += w * (s * n - cut * rel_t)
+                        state.particle_x[self.vertex[idx[k]]] += w * (s * n - cut * rel_t)
 
     @ti.func
     def _vertex_triangle(self, model: ti.template(), state: ti.template(), k):
@@ -434,8 +414,8 @@ class SelfContact:
 
     @ti.kernel
     def _proximity(self, model: ti.template(), state: ti.template()):
-        # One serial task for all sweeps: float sums in a fixed order make runs reproducible, and one
-        # launch replaces three per sweep (each parallel loop costs tens of microseconds to start).
+        # Gauss-Seidel sweeps in one serial task: each pair's correction is applied at once (it sums to
+        # zero momentum), the fixed order makes runs reproducible, and one launch replaces several.
         ti.loop_config(serialize=True)
         for _ in range(1):
             for _sweep in range(self.iterations):
@@ -443,16 +423,14 @@ class SelfContact:
                     self._vertex_triangle(model, state, k)
                 for k in range(self.count[1]):
                     self._edge_edge(model, state, k)
-                for v in range(self.vertex_count):
-                    i = self.vertex[v]
-                    if self.dx[v].norm_sqr() > 0.0:
-                        x = state.particle_x[i] + self.dx[v]
-                        if ti.static(model.collider_count > 0):
-                            x, _v = project_spheres(
-                                model.colliders, x, state.particle_v[i], model.radius(i), -1.0
-                            )
+                if ti.static(model.collider_count > 0):
+                    # A contact must not push a vertex into a collider (the lower of two sheets on a ball).
+                    for v in range(self.vertex_count):
+                        i = self.vertex[v]
+                        x, _v = project_spheres(
+                            model.colliders, state.particle_x[i], state.particle_v[i], model.radius(i), -1.0
+                        )
                         state.particle_x[i] = x
-                        self.dx[v] = ti.Vector.zero(float, 3)
 
     @ti.func
     def _moves_apart(self, state: ti.template(), i, j):

@@ -17,8 +17,9 @@ from .cloth import FRAME_DT, cloth_integrator
 SUBSTEPS = 10  # dt = 1/600 s
 
 
-def table_mesh(*, width: float = 0.9, depth: float = 0.6, height: float = 0.5, top: float = 0.04,
-               leg: float = 0.05):
+def table_mesh(
+    *, width: float = 0.9, depth: float = 0.6, height: float = 0.5, top: float = 0.04, leg: float = 0.05
+):
     """A table of `width` x `depth` [m] whose top (`top` [m] thick) is at `height` [m], centred over the
     origin, on four square legs of side `leg` [m]: one (vertices, triangles) of five closed boxes."""
     hw, hd = 0.5 * width, 0.5 * depth
@@ -26,7 +27,11 @@ def table_mesh(*, width: float = 0.9, depth: float = 0.6, height: float = 0.5, t
     for sx in (-1, 1):
         for sz in (-1, 1):
             cx, cz = sx * (hw - leg), sz * (hd - leg)
-            parts.append(box_mesh((cx - 0.5 * leg, 0.0, cz - 0.5 * leg), (cx + 0.5 * leg, height - top, cz + 0.5 * leg)))
+            parts.append(
+                box_mesh(
+                    (cx - 0.5 * leg, 0.0, cz - 0.5 * leg), (cx + 0.5 * leg, height - top, cz + 0.5 * leg)
+                )
+            )
     return merge_meshes(parts)
 
 

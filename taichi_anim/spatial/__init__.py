@@ -55,7 +55,7 @@ __all__ = [
 ]
 
 # Hierarchies over boxes and mesh queries.
-from .lbvh import BVH, morton3  # noqa: E402
+from .lbvh import morton3  # noqa: E402
 from .octree import Octree  # noqa: E402
 from .tri_grid import TriGrid  # noqa: E402
 
