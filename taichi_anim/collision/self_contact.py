@@ -76,8 +76,8 @@ class SelfContact:
     """The contact solver for every cloth triangle of `model` (built by the Stepper when the scene asked
     for self-contact). thickness [m]: the separation kept between non-adjacent primitives; friction:
     Coulomb coefficient; iterations: Gauss-Seidel sweeps of the proximity constraints; relaxation: the
-    factor applied to each pair's correction (over-relaxation above 1); bound_fraction gamma in (0, 0.5); pairs_per_vertex:
-    capacity of the candidate lists (an overflow raises rather than drop a contact)."""
+    factor applied to each pair's correction (over-relaxation above 1); bound_fraction gamma in
+    (0, 0.5); pairs_per_vertex: capacity of the pair lists (an overflow raises rather than drop one)."""
 
     def __init__(
         self,
