@@ -1,0 +1,253 @@
+"""Cloth self-contact: what it costs as a share of a step, and the stacked-sheets scene against Newton's
+VBD solver with self-contact in the same run.
+
+Part 1, the share of the step (`share`): the `layers` scene (taichi_anim/scenes/layers.py: two 1 m
+sheets of n x n vertices, 0.2 kg/m^2 springs, 3 cm apart, the lower at 0.6 m, over a 0.25 m ball on the
+floor; self-contact thickness 5 mm, friction 0.3, 8 Gauss-Seidel sweeps) for n = 64 and 128. It is run by
+implicit Euler (PCG, tol 1e-4) at dt = 1/600 s to t = RUN_UP s, when the sheets lie on the ball and on
+each other; from that state, STEPS steps are timed for implicit Euler at 1/600 s and for symplectic Euler
+at its stable step 0.4 sqrt(m / k) (m the vertex mass, k = 1e3 N/m). Per step: the whole step, and the
+self-contact solver's part (its calls wrapped by a synchronised clock), median over the steps.
+
+Part 2, against Newton (`newton`): the same scene at 33 x 33 vertices per sheet (32 x 32 cells), 1/60 s
+frames of 10 steps, implicit Euler, FRAMES frames; Newton's SolverVBD with self-contact (its settings in
+benchmarks/peers/newton_vbd.py) on the same sheets, ball and floor in the same process, with and without
+self-contact. Per frame: wall time (JIT compile reported apart: the first frame) and the crossing
+triangle pairs (non-adjacent triangles that intersect, counted by the exact test of
+taichi_anim.spatial.crossings on every frame, outside the timed region).
+
+    .venv/bin/python benchmarks/self_contact.py            # both parts: results/self_contact.md, RESULTS.md
+    .venv/bin/python benchmarks/self_contact.py --quick    # smoke run into benchmarks/out/
+"""
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import common  # noqa: E402
+
+import taichi_anim as ta  # noqa: E402
+from taichi_anim.scenes.layers import build_model  # noqa: E402
+from taichi_anim.spatial.crossings import intersecting_triangle_pairs  # noqa: E402
+
+FRAME_DT = 1.0 / 60.0
+SUBSTEPS = 10
+RUN_UP = 0.3  # [s]: the sheets lie on the ball and on each other
+STEPS = 20
+FRAMES = 90
+
+
+def implicit():
+    return ta.make_integrator("implicit_euler", linear_solver="pcg", tol=1e-4, max_iterations=200)
+
+
+def timed_contact(stepper) -> list:
+    """Wrap the stepper's self-contact calls with a synchronised clock; returns the accumulator."""
+    sc = stepper.self_contact
+    spent = [0.0]
+    begin, solve = sc.begin, sc.solve
+
+    def timed(fn):
+        def call(*args):
+            t0 = common.clock()
+            fn(*args)
+            spent[0] += common.clock() - t0
+
+        return call
+
+    sc.begin, sc.solve = timed(begin), timed(solve)
+    return spent
+
+
+def measure_steps(model, state, integrator, dt: float, steps: int) -> dict:
+    stepper = integrator.stepper_for(model)
+    spent = timed_contact(stepper)
+    for _ in range(3):  # compile: the first call builds the hierarchies, later ones refit them
+        integrator.step(model, state, dt)
+    totals, parts = [], []
+    for _ in range(steps):
+        spent[0] = 0.0
+        t0 = common.clock()
+        integrator.step(model, state, dt)
+        totals.append(common.clock() - t0)
+        parts.append(spent[0])
+    stats = stepper.self_contact.read_stats()
+    total, part = statistics.median(totals), statistics.median(parts)
+    return {
+        "dt": dt,
+        "ms_step": 1e3 * total,
+        "ms_contact": 1e3 * part,
+        "share": part / total,
+        "pairs": stats["vertex_triangle_pairs"] + stats["edge_edge_pairs"],
+    }
+
+
+def share(n: int, quick: bool) -> dict:
+    common.log(f"share: n = {n}")
+    model = build_model(layers=2, resolution=n)
+    state = model.state()
+    run_up = implicit()
+    t0 = time.perf_counter()
+    for _ in range(round((0.05 if quick else RUN_UP) * 600)):
+        run_up.step(model, state, FRAME_DT / SUBSTEPS)
+    run_up_s = time.perf_counter() - t0
+    snap = state.particle_x.to_numpy(), state.particle_v.to_numpy()
+    mass = 0.2 * (1.0 / (n - 1)) ** 2
+    out = {"n": n, "vertices": model.particle_count, "run_up_s": run_up_s}
+    for name, integ, dt in (
+        ("implicit Euler", implicit(), FRAME_DT / SUBSTEPS),
+        ("symplectic Euler", ta.make_integrator("symplectic_euler", check_every=10), 0.4 * np.sqrt(mass / 1e3)),
+    ):
+        state.particle_x.from_numpy(snap[0])
+        state.particle_v.from_numpy(snap[1])
+        out[name] = measure_steps(model, state, integ, dt, 4 if quick else STEPS)
+        common.log(f"  {name}: {out[name]}")
+    return out
+
+
+def ours_frames(frames: int) -> dict:
+    """The layers scene at 33^2 per sheet: ms per frame and crossing pairs per frame."""
+    model = build_model(layers=2, resolution=33)
+    state = model.state()
+    integ = implicit()
+    times, crossings = [], []
+    for f in range(frames + 1):
+        t0 = common.clock()
+        for _ in range(SUBSTEPS):
+            integ.step(model, state, FRAME_DT / SUBSTEPS)
+        times.append(common.clock() - t0)
+        x = state.particle_x.to_numpy().astype(np.float64)
+        crossings.append(len(intersecting_triangle_pairs(x, model.triangles)))
+    return {"first_frame_s": times[0], "ms_frame": [1e3 * t for t in times[1:]], "crossings": crossings[1:]}
+
+
+def newton_part(frames: int) -> dict:
+    """Ours and Newton's VBD (with and without self-contact), one after the other in this process."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent / "peers"))
+    import newton_vbd
+
+    results = {"taichi_anim": ours_frames(frames)}
+    for contact in (True, False):
+        key = f"newton_vbd{'' if contact else '_no_self_contact'}"
+        common.log(f"newton: self_contact={contact}")
+        results[key] = newton_vbd.measure(frames=frames, self_contact=contact)
+    return results
+
+
+def summary(frames: dict) -> dict:
+    ms = frames["ms_frame"]
+    return {
+        "median_ms": statistics.median(ms),
+        "mean_ms": float(np.mean(ms)),
+        "max_crossings": int(max(frames["crossings"])),
+        "frames_with_crossings": int(sum(c > 0 for c in frames["crossings"])),
+    }
+
+
+def report(shares: list, newton: dict | None, args, load0: str, other) -> str:
+    info = common.machine_info()
+    lines = [
+        "## Cloth self-contact (`benchmarks/self_contact.py`)",
+        "",
+        f"Command: `{common.command_line(args, 'self_contact.py')}`. Settings in the script's docstring.",
+        "",
+        "### Share of the step",
+        "",
+    ]
+    rows = []
+    for s in shares:
+        for name in ("implicit Euler", "symplectic Euler"):
+            r = s[name]
+            rows.append(
+                [
+                    f"2 x {s['n']}^2",
+                    name,
+                    common.fmt_dt(r["dt"]),
+                    f"{r['ms_step']:.2f}",
+                    f"{r['ms_contact']:.2f}",
+                    f"{100 * r['share']:.0f}%",
+                    r["pairs"],
+                ]
+            )
+    lines.append(
+        common.md_table(
+            ["sheets", "method", "dt", "ms/step", "self-contact ms/step", "share", "proximity pairs"], rows
+        )
+    )
+    if newton:
+        lines += ["", "### Stacked sheets against Newton's VBD (same run)", ""]
+        base = summary(newton["taichi_anim"])["median_ms"]
+        rows = []
+        for key, r in newton.items():
+            s = summary(r)
+            rows.append(
+                [
+                    key,
+                    f"{s['median_ms']:.0f}",
+                    f"{s['mean_ms']:.0f}",
+                    f"{r['first_frame_s']:.1f}",
+                    s["max_crossings"],
+                    s["frames_with_crossings"],
+                    f"{s['median_ms'] / base:.2f}",
+                ]
+            )
+        lines.append(
+            common.md_table(
+                [
+                    "solver",
+                    "median ms/frame",
+                    "mean ms/frame",
+                    "first frame (compile) s",
+                    "max crossing pairs in a frame",
+                    "frames with crossings",
+                    "time / taichi_anim",
+                ],
+                rows,
+            )
+        )
+    lines += [
+        "",
+        common.machine_table(
+            info,
+            load_start=load0,
+            load_end=common.load_average(),
+            date=time.strftime("%Y-%m-%d"),
+            engine=common.engine_fingerprint(),
+            other=other,
+        ),
+    ]
+    return "\n".join(lines)
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--quick", action="store_true")
+    p.add_argument("--out", type=Path, default=None)
+    p.add_argument("--part", choices=["all", "share", "newton"], default="all")
+    args = p.parse_args(argv)
+    md, folder = common.output_paths(args)
+    folder.mkdir(parents=True, exist_ok=True)
+    load0, other = common.load_average(), common.OtherLoad()
+    common.init("f32")
+    shares = []
+    if args.part in ("all", "share"):
+        shares = [share(n, args.quick) for n in ((16, 24) if args.quick else (64, 128))]
+    newton = None
+    if args.part in ("all", "newton"):
+        newton = newton_part(3 if args.quick else FRAMES)
+    (folder / "self_contact.json").write_text(json.dumps({"share": shares, "newton": newton}, indent=1))
+    text = report(shares, newton, args, load0, other)
+    (folder / "self_contact.md").write_text(text + "\n")
+    common.write_section(md, "self_contact", text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
