@@ -134,16 +134,27 @@ def queries(lo, hi, nq, rng):
 
 
 def tree_check(tree, n):
-    """Walk the tree in NumPy: a binary tree whose leaves are each primitive once; node boxes are the
-    unions of their children's. Returns the depth (leaf levels)."""
+    """Walk the tree in NumPy: a binary tree whose leaves are each primitive once; each child box
+    stored in a node is the primitive's box (leaf) or the union of that child's own children's boxes.
+    Returns the depth (leaf levels)."""
     root = int(tree.root[None])
     if n == 0:
         assert root == -1
         return 0
     child = tree.node_child.to_numpy()
-    nlo, nhi = tree.node_lo.to_numpy(), tree.node_hi.to_numpy()
+    box = tree.node_box.to_numpy()  # (inner, 4, 3): lo_a, hi_a, lo_b, hi_b
+    plo, phi = tree.prim_lo.to_numpy(), tree.prim_hi.to_numpy()
     pid = tree.prim_id.to_numpy()[:n]
     assert sorted(pid.tolist()) == list(range(n))
+
+    def own_box(node):
+        if node >= tree.leaf_base:
+            k = pid[node - tree.leaf_base]
+            return plo[k], phi[k]
+        return np.minimum(box[node, 0], box[node, 2]), np.maximum(box[node, 1], box[node, 3])
+
+    rlo, rhi = own_box(root)
+    np.testing.assert_array_equal(tree.root_box.to_numpy(), [rlo, rhi])
     seen, depth, stack = [], 0, [(root, 1)]
     while stack:
         node, d = stack.pop()
@@ -151,10 +162,11 @@ def tree_check(tree, n):
         if node >= tree.leaf_base:
             seen.append(node - tree.leaf_base)
             continue
-        a, b = child[node]
-        np.testing.assert_array_equal(nlo[node], np.minimum(nlo[a], nlo[b]))
-        np.testing.assert_array_equal(nhi[node], np.maximum(nhi[a], nhi[b]))
-        stack += [(a, d + 1), (b, d + 1)]
+        for side, c in enumerate(child[node]):
+            lo, hi = own_box(c)
+            np.testing.assert_array_equal(box[node, 2 * side], lo)
+            np.testing.assert_array_equal(box[node, 2 * side + 1], hi)
+            stack.append((c, d + 1))
     assert sorted(seen) == list(range(n))
     return depth
 

@@ -91,7 +91,7 @@ class BVH:
     The caller writes primitive boxes into `prim_lo[k]`, `prim_hi[k]` (Vector fields (capacity, 3) [m],
     lo <= hi, finite) for k < n in its own kernel, then calls `build(n)`; after moving them, `refit()`
     or `update()`. Node layout: internal nodes 0 .. n-2 (root 0), leaves at `leaf_base` + k for sorted
-    position k, whose primitive is `prim_id[k]`; `node_lo`/`node_hi` hold every node's box.
+    position k, whose primitive is `prim_id[k]`; `node_box[t]` holds internal node t's two child boxes.
 
     rebuild_ratio: `update()` rebuilds when the refit tree's surface-area cost exceeds this many times
     its cost after the last build (> 1).
@@ -107,10 +107,12 @@ class BVH:
         inner = max(c - 1, 1)  # Taichi refuses zero-sized fields (capacity 1 has no internal node)
         self.prim_lo = ti.Vector.field(3, float, c)
         self.prim_hi = ti.Vector.field(3, float, c)
-        self.node_lo = ti.Vector.field(3, float, 2 * c - 1)
-        self.node_hi = ti.Vector.field(3, float, 2 * c - 1)
-        self.node_parent = ti.field(ti.i32, 2 * c - 1)
+        # Internal node t holds its two children's boxes (rows lo_a, hi_a, lo_b, hi_b): expanding a node
+        # reads one record. node_parent[x] = 2 * parent + side (side 0: child a, 1: child b), -1 root.
+        self.node_box = ti.Matrix.field(4, 3, float, inner)
         self.node_child = ti.Vector.field(2, ti.i32, inner)
+        self.node_parent = ti.field(ti.i32, 2 * c - 1)
+        self.root_box = ti.Vector.field(3, float, 2)
         self.node_cost = ti.field(float, inner)  # sum of internal areas in the subtree
         self.node_visits = ti.field(ti.i32, inner)
         self.prim_id = ti.field(ti.i32, c)
@@ -296,8 +298,8 @@ class BVH:
             if ti.max(i, j) == gamma + 1:
                 right = self.leaf_base + gamma + 1
             self.node_child[i] = ti.Vector([left, right])
-            self.node_parent[left] = i
-            self.node_parent[right] = i
+            self.node_parent[left] = 2 * i
+            self.node_parent[right] = 2 * i + 1
 
     # ---------------------------------------------------------------------------------------------
     # refit
@@ -314,6 +316,25 @@ class BVH:
         return out
 
     @ti.func
+    def _store_box(self, node, lo, hi):
+        """Write a node's box into its parent's record (or the root box)."""
+        code = self.node_parent[node]
+        if code < 0:
+            self.root_box[0] = lo
+            self.root_box[1] = hi
+        else:
+            row = 2 * (code & 1)
+            for a in ti.static(range(3)):
+                self.node_box[code >> 1][row, a] = lo[a]
+                self.node_box[code >> 1][row + 1, a] = hi[a]
+
+    @ti.func
+    def _child_box(self, node, side):
+        m = self.node_box[node]
+        r = 2 * side
+        return ti.Vector([m[r, 0], m[r, 1], m[r, 2]]), ti.Vector([m[r + 1, 0], m[r + 1, 1], m[r + 1, 2]])
+
+    @ti.func
     def _refit(self, n):
         """Bottom-up boxes with visit counters: the second child to reach a parent computes it."""
         ti.loop_config(serialize=self._serial)
@@ -321,27 +342,27 @@ class BVH:
             self.node_visits[t] = 0
         ti.loop_config(serialize=self._serial)
         for k in range(n):
-            leaf = self.leaf_base + k
+            node = self.leaf_base + k
             p = self.prim_id[k]
-            self.node_lo[leaf] = self.prim_lo[p]
-            self.node_hi[leaf] = self.prim_hi[p]
-            node = leaf
+            self._store_box(node, self.prim_lo[p], self.prim_hi[p])
             climbing = True
             while climbing:
-                parent = self.node_parent[node]
-                if parent < 0:
+                code = self.node_parent[node]
+                if code < 0:
                     climbing = False
                 else:
+                    parent = code >> 1
                     if ti.static(self._cuda):
                         ti.simt.grid.memfence()  # publish this child's box before the counter
                     if ti.atomic_add(self.node_visits[parent], 1) == 0:
                         climbing = False  # the sibling is not done yet: it will compute the parent
                     else:
+                        lo_a, hi_a = self._child_box(parent, 0)
+                        lo_b, hi_b = self._child_box(parent, 1)
+                        lo = ti.min(lo_a, lo_b)
+                        hi = ti.max(hi_a, hi_b)
+                        self._store_box(parent, lo, hi)
                         ab = self.node_child[parent]
-                        lo = ti.min(self.node_lo[ab[0]], self.node_lo[ab[1]])
-                        hi = ti.max(self.node_hi[ab[0]], self.node_hi[ab[1]])
-                        self.node_lo[parent] = lo
-                        self.node_hi[parent] = hi
                         self.node_cost[parent] = (
                             aabb_surface_area(lo, hi) + self._child_cost(ab[0]) + self._child_cost(ab[1])
                         )
@@ -349,7 +370,7 @@ class BVH:
         for _ in range(1):
             q = 0.0
             if n > 1:
-                area = aabb_surface_area(self.node_lo[0], self.node_hi[0])
+                area = aabb_surface_area(self.root_box[0], self.root_box[1])
                 if area > 0.0:
                     q = self.node_cost[0] / area
             self.quality[None] = q
@@ -361,36 +382,81 @@ class BVH:
     def traverse(self, i, q, score: ti.template(), visit: ti.template(), ret: ti.template()):
         """Depth-first walk: `score(q, lo, hi, ret)` rates a node's box for query data q (any Taichi
         value): < 0 skips the subtree, otherwise the child with the lower score is walked first.
-        `visit(i, prim, ret)` is called for each leaf whose box scored >= 0 when it was tested (a
-        nearest-first search tightens its bound in ret and re-checks it in visit)."""
+        `visit(i, prim, ret)` is called for each leaf whose box scored >= 0. For filters whose score
+        does not change as the walk goes (overlap, in-sphere, rays up to a fixed t)."""
+        self._walk(i, q, score, score, visit, ret, False)
+
+    @ti.func
+    def traverse_nearest(
+        self, i, q, score: ti.template(), bound: ti.template(), visit: ti.template(), ret: ti.template()
+    ):
+        """`traverse` for searches that tighten a bound in ret as they go (closest point, nearest hit):
+        `bound(ret)` is the largest score still of interest; a subtree pushed earlier is skipped when
+        its score has come to exceed it, and of two children the farther is dropped if visiting the
+        nearer one has excluded it."""
+        self._walk(i, q, score, bound, visit, ret, True)
+
+    @ti.func
+    def _walk(
+        self,
+        i,
+        q,
+        score: ti.template(),
+        bound: ti.template(),
+        visit: ti.template(),
+        ret: ti.template(),
+        nearest: ti.template(),
+    ):
         root = self.root[None]
-        if root >= 0 and score(q, self.node_lo[root], self.node_hi[root], ret) >= 0.0:
+        s_root = -1.0
+        if root >= 0:
+            s_root = score(q, self.root_box[0], self.root_box[1], ret)
+        if s_root >= 0.0 and root >= self.leaf_base:
+            visit(i, self.prim_id[root - self.leaf_base], ret)
+        elif s_root >= 0.0:
             stack = ti.Vector([0] * STACK_SIZE, ti.i32)
+            stack_score = ti.Vector([0.0] * STACK_SIZE, float)
             stack[0] = root
             top = 1
             while top > 0:
                 top -= 1
                 node = stack[top]
-                if node >= self.leaf_base:
-                    visit(i, self.prim_id[node - self.leaf_base], ret)
-                else:
+                go = True
+                if ti.static(nearest):
+                    go = stack_score[top] <= bound(ret)
+                if go:
                     ab = self.node_child[node]
-                    sa = score(q, self.node_lo[ab[0]], self.node_hi[ab[0]], ret)
-                    sb = score(q, self.node_lo[ab[1]], self.node_hi[ab[1]], ret)
-                    if sa >= 0.0 and sb >= 0.0:
-                        near = ab[0]
-                        far = ab[1]
-                        if sb < sa:
-                            near = ab[1]
-                            far = ab[0]
-                        stack[top] = far
-                        stack[top + 1] = near
-                        top += 2
-                    elif sa >= 0.0:
-                        stack[top] = ab[0]
-                        top += 1
-                    elif sb >= 0.0:
-                        stack[top] = ab[1]
+                    lo_a, hi_a = self._child_box(node, 0)
+                    lo_b, hi_b = self._child_box(node, 1)
+                    sa = score(q, lo_a, hi_a, ret)
+                    sb = score(q, lo_b, hi_b, ret)
+                    near = ab[0]
+                    far = ab[1]
+                    s_near = sa
+                    s_far = sb
+                    if sb >= 0.0 and (sa < 0.0 or sb < sa):
+                        near = ab[1]
+                        far = ab[0]
+                        s_near = sb
+                        s_far = sa
+                    # leaves are visited at once, the nearer first; internal nodes are pushed, the
+                    # nearer last (so it is walked next)
+                    if s_near >= 0.0 and near >= self.leaf_base:
+                        visit(i, self.prim_id[near - self.leaf_base], ret)
+                    if s_far >= 0.0:
+                        if ti.static(nearest):
+                            if s_far > bound(ret):
+                                s_far = -1.0
+                    if s_far >= 0.0:
+                        if far >= self.leaf_base:
+                            visit(i, self.prim_id[far - self.leaf_base], ret)
+                        else:
+                            stack[top] = far
+                            stack_score[top] = s_far
+                            top += 1
+                    if s_near >= 0.0 and near < self.leaf_base:
+                        stack[top] = near
+                        stack_score[top] = s_near
                         top += 1
 
     @ti.func
