@@ -27,10 +27,21 @@ from .distance import (
     point_triangle_feature,
     segment_segment_closest,
 )
-from .lbvh import BVH
+from .intersect import (
+    NO_HIT,
+    ray_triangle,
+    segment_triangle,
+    triangle_triangle_intersect,
+)
+from .lbvh import BVH, morton3
+from .octree import Octree
+from .tri_grid import TriGrid
 
 __all__ = [
     "BVH",
+    "Octree",
+    "TriGrid",
+    "morton3",
     "aabb_contains",
     "aabb_edge",
     "aabb_merge",
@@ -52,11 +63,9 @@ __all__ = [
     "point_triangle_distance_sq",
     "point_triangle_feature",
     "segment_segment_closest",
+    "NO_HIT",
+    "ray_triangle",
+    "segment_triangle",
+    "triangle_triangle_intersect",
 ]
 
-# Hierarchies over boxes and mesh queries.
-from .lbvh import morton3  # noqa: E402
-from .octree import Octree  # noqa: E402
-from .tri_grid import TriGrid  # noqa: E402
-
-__all__ += ["BVH", "Octree", "TriGrid", "morton3"]
