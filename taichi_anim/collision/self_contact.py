@@ -166,6 +166,8 @@ class SelfContact:
             self.edge_bvh.build(self.edge_count)
             self._built = True
         self._query()
+        self._query_edges()
+        self._bounds()
         if self.count[0] + self.count[1] > 0:  # one read: most steps of a falling cloth have no pairs
             self._proximity(model, state)
         self._finish(model, state, h)
@@ -272,22 +274,19 @@ class SelfContact:
             ti.atomic_min(self.d_tri[f], d)
             if d < ret.r + self.tri_reach[f]:
                 self._add_pair(4, ti.Vector([v, f]), d)
-                if self._close_at_end(v, t[0], t[1], t[2]):
+                if d - self._apart(v, t[0], t[1], t[2]) < KEEP * self.thickness:
                     self._add_pair(0, ti.Vector([v, f]), d)
 
     @ti.func
-    def _close_at_end(self, v, i, j, k):
-        """Whether vertex v is within KEEP thicknesses of triangle ijk at the proposed end positions."""
-        p = self.x_pred[v]
-        a, b, c = self.x_pred[i], self.x_pred[j], self.x_pred[k]
-        w = point_triangle_closest(p, a, b, c)
-        return (p - (w[0] * a + w[1] * b + w[2] * c)).norm() < KEEP * self.thickness
-
-    @ti.func
-    def _edges_close_at_end(self, a, b, c, d):
-        p0, p1, q0, q1 = self.x_pred[a], self.x_pred[b], self.x_pred[c], self.x_pred[d]
-        st = segment_segment_closest(p0, p1, q0, q1)
-        return ((p0 + st[0] * (p1 - p0)) - (q0 + st[1] * (q1 - q0))).norm() < KEEP * self.thickness
+    def _apart(self, v, i, j, k):
+        """The most vertex v moved relative to vertex i, j or k over the proposed step [m]: a pair's
+        distance changes by at most that much (so no second closest-point query at the end positions)."""
+        dv = self.x_pred[v] - self.x0[v]
+        return ti.max(
+            (dv - self.x_pred[i] + self.x0[i]).norm(),
+            (dv - self.x_pred[j] + self.x0[j]).norm(),
+            (dv - self.x_pred[k] + self.x0[k]).norm(),
+        )
 
     @ti.func
     def _visit_edge(self, e, g, ret: ti.template()):
@@ -301,7 +300,7 @@ class SelfContact:
             ti.atomic_min(self.d_edge[g], dist)
             if dist < ret.r + self.edge_reach[g]:
                 self._add_pair(5, ti.Vector([e, g]), dist)
-                if self._edges_close_at_end(a, b, c, d):
+                if dist - ti.max(self._apart(a, c, d, d), self._apart(b, c, d, d)) < KEEP * self.thickness:
                     self._add_pair(1, ti.Vector([e, g]), dist)
 
     @ti.kernel
@@ -319,11 +318,18 @@ class SelfContact:
             ret = self._acc(x=self.x0[v], r=r, d=r)
             self.tri_bvh.for_each_overlap(v, ret.x - r, ret.x + r, self._visit_triangle, ret)
             self.d_vert[v] = ret.d
+
+    @ti.kernel
+    def _query_edges(self):
+        # A kernel of its own: one with both traversals took several times as long to compile.
         for e in range(self.edge_count):
             p, q = self.x0[self.edge[e][0]], self.x0[self.edge[e][1]]
             r = self.edge_reach[e]
             ret = self._acc(x=p, r=r, d=r)
             self.edge_bvh.for_each_overlap(e, ti.min(p, q) - r, ti.max(p, q) + r, self._visit_edge, ret)
+
+    @ti.kernel
+    def _bounds(self):
         for v in range(self.vertex_count):
             d = self.d_vert[v]
             for k in range(self.vt_start[v], self.vt_start[v + 1]):
