@@ -9,10 +9,11 @@ inside the triangle (the two lines' intersection lies inside both edges). Requir
 reported hit is a real near-contact (at tau, distance <= thickness and |f| near round-off).
 
 False positives are near misses within the thickness (the point crosses the plane just outside the
-triangle, or the edges pass within h), which the thickness makes count by design. Measured on these sets
-(f64): thickness 1e-6: FP_PT_6 of 3,000 point–triangle and FP_EE_6 of 3,000 edge–edge motions; thickness
-1e-2: FP_PT_2 point–triangle (FP_PT_2_REL of the reported hits) and FP_EE_2 edge–edge (FP_EE_2_REL).
-The bounds asserted below keep these figures honest.
+triangle, or the edges pass within h of each other), which the thickness makes count by design. Measured
+on these sets (f64): with thickness 1e-6, 0 false positives of 3,000 motions for point–triangle and 0
+for edge–edge; with thickness 1e-2 (1% of the primitives' size), 16 of 3,000 point–triangle motions
+(0.5%; 3.9% of the 409 reported hits) and 23 of 3,000 edge–edge motions (0.8%; 2.6% of 899 reported
+hits). The bounds asserted below keep these figures honest.
 
 Adversarial cases have hand-derived answers: crossing through a face, an edge, a vertex; near misses
 inside and outside the thickness; motion within the plane; parallel motion just above it; parallel and
@@ -201,15 +202,15 @@ def _check_random(edge, seed):
 
 def test_point_triangle_random_motions_have_no_false_negatives():
     fps, hits = _check_random(edge=False, seed=20)
-    assert fps[1e-6] <= 2
-    assert fps[1e-2] <= 0.1 * hits
+    assert fps[1e-6] == 0
+    assert fps[1e-2] <= 0.06 * hits
     print(f"point-triangle: {hits} reference hits of {N_CASES}; false positives {fps}")
 
 
 def test_edge_edge_random_motions_have_no_false_negatives():
     fps, hits = _check_random(edge=True, seed=21)
-    assert fps[1e-6] <= 2
-    assert fps[1e-2] <= 0.1 * hits
+    assert fps[1e-6] == 0
+    assert fps[1e-2] <= 0.06 * hits
     print(f"edge-edge: {hits} reference hits of {N_CASES}; false positives {fps}")
 
 
@@ -347,12 +348,17 @@ EE_CASES = [
 
 
 def _check_adversarial(cases, edge, dtype, tol=1e-9):
-    tau = _run(np.array([c for _, c, _ in cases]), H, edge, dtype)
-    for (name, _, want), got in zip(cases, tau, strict=True):
-        if want is None:
-            assert got == NO_HIT, (name, got)
-        else:
-            assert want[0] - tol <= got <= want[1] + tol, (name, got, want)
+    """The cases as written (axis-aligned: coplanar motion has f = 0 exactly) and rigidly rotated and
+    moved (f is then round-off noise around 0, which the tolerance band must absorb); same answers."""
+    x = np.array([c for _, c, _ in cases])
+    q, _ = np.linalg.qr(np.random.default_rng(22).normal(size=(3, 3)))
+    for xs in (x, x @ q.T + np.array([0.3, -0.7, 0.2])):
+        tau = _run(xs, H, edge, dtype)
+        for (name, _, want), got in zip(cases, tau, strict=True):
+            if want is None:
+                assert got == NO_HIT, (name, got)
+            else:
+                assert want[0] - tol <= got <= want[1] + tol, (name, got, want)
 
 
 def test_point_triangle_adversarial():

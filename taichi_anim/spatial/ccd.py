@@ -42,8 +42,8 @@ from taichi.lang import impl
 
 from .bounds import fp_epsilon
 from .distance import point_triangle_closest, segment_segment_closest
+from .intersect import NO_HIT
 
-NO_HIT = 2.0
 ADVANCE_STEPS = 128
 
 
