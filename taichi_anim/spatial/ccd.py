@@ -128,24 +128,30 @@ def _distance(edge: ti.template(), x0, x1, x2, x3, y0, y1, y2, y3, t):
 
 
 @ti.func
+def _cubic_vectors(edge: ti.template(), x0, x1, x2, x3):
+    """(X, Y, Z) with f = (X x Y) . Z: (b - a, c - a, p - a) for p = x0 and triangle x1 x2 x3, or
+    (q - p, s - r, r - p) for edges x0 x1 and x2 x3."""
+    X = x2 - x1
+    Y = x3 - x1
+    Z = x0 - x1
+    if ti.static(edge):
+        X = x1 - x0
+        Y = x3 - x2
+        Z = x2 - x0
+    return X, Y, Z
+
+
+@ti.func
 def _ccd(edge: ti.template(), x0, x1, x2, x3, y0, y1, y2, y3, h):
-    # x: positions at the start, y: at the end of the step. Relative vectors X, Y, Z of the cubic.
-    X0 = x2 - x1
-    Y0 = x3 - x1
-    Z0 = x0 - x1
-    if ti.static(edge):
-        X0 = x1 - x0
-        Y0 = x3 - x2
-        Z0 = x2 - x0
-    dX = y2 - y1 - X0
-    dY = y3 - y1 - Y0
-    dZ = y0 - y1 - Z0
+    # x: positions at the start, y: at the end of the step.
+    X0, Y0, Z0 = _cubic_vectors(edge, x0, x1, x2, x3)
+    X1, Y1, Z1 = _cubic_vectors(edge, y0, y1, y2, y3)
+    dX = X1 - X0
+    dY = Y1 - Y0
+    dZ = Z1 - Z0
+    # Bound on the rate of change of the distance: the largest relative speed of a point of one
+    # primitive and a point of the other, attained at vertices.
     v0, v1, v2, v3 = y0 - x0, y1 - x1, y2 - x2, y3 - x3
-    if ti.static(edge):
-        dX = y1 - y0 - X0
-        dY = y3 - y2 - Y0
-        dZ = y2 - y0 - Z0
-    # Largest rate of change of the distance (relative speed of the closest points' vertices).
     speed = ti.max((v0 - v1).norm(), (v0 - v2).norm(), (v0 - v3).norm())
     if ti.static(edge):
         speed = ti.max((v0 - v2).norm(), (v0 - v3).norm(), (v1 - v2).norm(), (v1 - v3).norm())
