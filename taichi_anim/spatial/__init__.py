@@ -20,6 +20,10 @@ from .bounds import (
     sphere_overlap,
     sphere_triangle,
 )
+from .ccd import (
+    ccd_edge_edge,
+    ccd_point_triangle,
+)
 from .distance import (
     point_segment_closest,
     point_triangle_closest,
@@ -67,5 +71,7 @@ __all__ = [
     "ray_triangle",
     "segment_triangle",
     "triangle_triangle_intersect",
+    "ccd_edge_edge",
+    "ccd_point_triangle",
 ]
 
