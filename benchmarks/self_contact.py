@@ -103,7 +103,11 @@ def share(n: int, quick: bool) -> dict:
     out = {"n": n, "vertices": model.particle_count, "run_up_s": run_up_s}
     for name, integ, dt in (
         ("implicit Euler", implicit(), FRAME_DT / SUBSTEPS),
-        ("symplectic Euler", ta.make_integrator("symplectic_euler", check_every=10), 0.4 * np.sqrt(mass / 1e3)),
+        (
+            "symplectic Euler",
+            ta.make_integrator("symplectic_euler", check_every=10),
+            0.4 * np.sqrt(mass / 1e3),
+        ),
     ):
         state.particle_x.from_numpy(snap[0])
         state.particle_v.from_numpy(snap[1])
@@ -112,20 +116,26 @@ def share(n: int, quick: bool) -> dict:
     return out
 
 
-def ours_frames(frames: int) -> dict:
+def ours_frames(frames: int, **options) -> dict:
     """The layers scene at 33^2 per sheet: ms per frame and crossing pairs per frame."""
-    model = build_model(layers=2, resolution=33)
+    model = build_model(layers=2, resolution=33, **options)
     state = model.state()
     integ = implicit()
-    times, crossings = [], []
-    for f in range(frames + 1):
-        t0 = common.clock()
+    times, cpu, crossings = [], [], []
+    for _ in range(frames + 1):
+        t0, c0 = common.clock(), time.process_time()
         for _ in range(SUBSTEPS):
             integ.step(model, state, FRAME_DT / SUBSTEPS)
         times.append(common.clock() - t0)
+        cpu.append(time.process_time() - c0)
         x = state.particle_x.to_numpy().astype(np.float64)
         crossings.append(len(intersecting_triangle_pairs(x, model.triangles)))
-    return {"first_frame_s": times[0], "ms_frame": [1e3 * t for t in times[1:]], "crossings": crossings[1:]}
+    return {
+        "first_frame_s": times[0],  # JIT compile included
+        "ms_frame": [1e3 * t for t in times[1:]],
+        "cpu_ms_frame": [1e3 * t for t in cpu[1:]],
+        "crossings": crossings[1:],
+    }
 
 
 def newton_part(frames: int) -> dict:
@@ -134,10 +144,20 @@ def newton_part(frames: int) -> dict:
     import newton_vbd
 
     results = {"taichi_anim": ours_frames(frames)}
+    common.log("taichi_anim: proximity only, and without self-contact")
+    results["taichi_anim_proximity_only"] = ours_frames(frames, guard=False)
+    results["taichi_anim_no_self_contact"] = ours_frames(frames, self_contact=False)
     for contact in (True, False):
         key = f"newton_vbd{'' if contact else '_no_self_contact'}"
         common.log(f"newton: self_contact={contact}")
-        results[key] = newton_vbd.measure(frames=frames, self_contact=contact)
+        r = newton_vbd.run(frames, contact)
+        results[key] = {
+            "first_frame_s": r["warmup_s"],  # a first instance run for one frame: Warp's compile
+            "ms_frame": (1e3 * r["frame_s"]).tolist(),
+            "cpu_ms_frame": (1e3 * r["frame_cpu_s"]).tolist(),
+            "crossings": newton_vbd.crossings_per_frame(r)[1:].tolist(),
+            "settings": r["settings"],
+        }
     return results
 
 
@@ -146,6 +166,7 @@ def summary(frames: dict) -> dict:
     return {
         "median_ms": statistics.median(ms),
         "mean_ms": float(np.mean(ms)),
+        "cpu_ms": float(np.mean(frames["cpu_ms_frame"])),
         "max_crossings": int(max(frames["crossings"])),
         "frames_with_crossings": int(sum(c > 0 for c in frames["crossings"])),
     }
@@ -192,6 +213,7 @@ def report(shares: list, newton: dict | None, args, load0: str, other) -> str:
                     key,
                     f"{s['median_ms']:.0f}",
                     f"{s['mean_ms']:.0f}",
+                    f"{s['cpu_ms']:.0f}",
                     f"{r['first_frame_s']:.1f}",
                     s["max_crossings"],
                     s["frames_with_crossings"],
@@ -204,6 +226,7 @@ def report(shares: list, newton: dict | None, args, load0: str, other) -> str:
                     "solver",
                     "median ms/frame",
                     "mean ms/frame",
+                    "CPU ms/frame (all threads)",
                     "first frame (compile) s",
                     "max crossing pairs in a frame",
                     "frames with crossings",

@@ -437,6 +437,7 @@ class Builder:
         relaxation: float = 1.0,
         bound_fraction: float = 0.4,
         pairs_per_vertex: int = 64,
+        guard: bool = True,
     ) -> None:
         """Contact between every cloth's triangles, within one cloth and between cloths
         (collision/self_contact.py): non-adjacent vertex-triangle and edge-edge pairs are kept
@@ -444,7 +445,7 @@ class Builder:
         `iterations` Gauss-Seidel sweeps of proximity constraints (each pair's correction times
         `relaxation`), and per-vertex displacement bounds (a `bound_fraction` < 1/2 of the distance to the
         nearest primitive) let no step end with two triangles crossing. pairs_per_vertex: capacity of the
-        candidate lists."""
+        candidate lists; guard=False leaves the bounds out (proximity only: cheaper, may cross)."""
         from .collision.self_contact import self_contact_options
 
         if thickness is None:
@@ -459,6 +460,7 @@ class Builder:
             relaxation=relaxation,
             bound_fraction=bound_fraction,
             pairs_per_vertex=pairs_per_vertex,
+            guard=guard,
         )
 
     def add_particle_trails(self, length: int) -> None:

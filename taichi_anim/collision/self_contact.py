@@ -77,7 +77,9 @@ class SelfContact:
     for self-contact). thickness [m]: the separation kept between non-adjacent primitives; friction:
     Coulomb coefficient; iterations: Gauss-Seidel sweeps of the proximity constraints; relaxation: the
     factor applied to each pair's correction (over-relaxation above 1); bound_fraction gamma in
-    (0, 0.5); pairs_per_vertex: capacity of the pair lists (an overflow raises rather than drop one)."""
+    (0, 0.5); pairs_per_vertex: capacity of the pair lists (an overflow raises rather than drop one);
+    guard=False leaves out the displacement bounds (proximity only: cheaper, but a fast step can end
+    with a crossing; for comparisons)."""
 
     def __init__(
         self,
@@ -89,12 +91,14 @@ class SelfContact:
         relaxation: float,
         bound_fraction: float,
         pairs_per_vertex: int,
+        guard: bool = True,
     ):
         self.thickness = thickness
         self.friction = friction
         self.iterations = iterations
         self.relaxation = relaxation
         self.gamma = bound_fraction
+        self.guard = guard
         tri_model = np.asarray(model.triangles, dtype=np.int64)
         used = np.unique(tri_model)
         local = np.full(model.particle_count, -1, dtype=np.int64)
@@ -147,6 +151,7 @@ class SelfContact:
             "iterations": self.iterations,
             "relaxation": self.relaxation,
             "bound_fraction": self.gamma,
+            "guard": self.guard,
         }
 
     # -- the step ---------------------------------------------------------------------------------------
@@ -505,13 +510,14 @@ class SelfContact:
             self.hold[v] = 0
         # Hold the vertices of pairs that could have met, re-check (holding one vertex can make a new
         # pair fast), and after HOLD_PASSES hold every vertex: all held, every pair is safe (gamma < 1/2).
-        for _pass in ti.static(range(HOLD_PASSES)):
-            self._violations(state, True)
-            self._clamp(model, state, False)
-        self._violations(state, False)
-        if self.count[7] > 0:
-            self.count[6] += 1
-        self._clamp(model, state, True)
+        if ti.static(self.guard):
+            for _pass in ti.static(range(HOLD_PASSES)):
+                self._violations(state, True)
+                self._clamp(model, state, False)
+            self._violations(state, False)
+            if self.count[7] > 0:
+                self.count[6] += 1
+            self._clamp(model, state, True)
         for v in range(self.vertex_count):
             i = self.vertex[v]
             x = state.particle_x[i]
@@ -529,6 +535,7 @@ def self_contact_options(
     relaxation: float = 1.0,
     bound_fraction: float = 0.4,
     pairs_per_vertex: int = 64,
+    guard: bool = True,
 ) -> dict:
     """Validated options of `SelfContact` (the Builder's add_cloth_self_contact)."""
     return dict(
@@ -538,4 +545,5 @@ def self_contact_options(
         relaxation=validate.in_range("relaxation", relaxation, 1e-3, 2.0),
         bound_fraction=validate.in_range("bound_fraction", bound_fraction, 1e-3, 0.49),
         pairs_per_vertex=validate.count("pairs_per_vertex", pairs_per_vertex, 1),
+        guard=bool(guard),
     )
