@@ -3,7 +3,7 @@ VBD solver with self-contact in the same run.
 
 Part 1, the share of the step (`share`): the `layers` scene (taichi_anim/scenes/layers.py: two 1 m
 sheets of n x n vertices, 0.2 kg/m^2 springs, 3 cm apart, the lower at 0.6 m, over a 0.25 m ball on the
-floor; self-contact thickness 5 mm, friction 0.3, 8 Gauss-Seidel sweeps) for n = 64 and 128. It is run by
+floor; self-contact thickness 5 mm, friction 0.3, 4 Gauss-Seidel sweeps) for n = 64 and 128. It is run by
 implicit Euler (PCG, tol 1e-4) at dt = 1/600 s to t = RUN_UP s, when the sheets lie on the ball and on
 each other; from that state, STEPS steps are timed for implicit Euler at 1/600 s and for symplectic Euler
 at its stable step 0.4 sqrt(m / k) (m the vertex mass, k = 1e3 N/m). Per step: the whole step, and the

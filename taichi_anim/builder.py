@@ -433,7 +433,7 @@ class Builder:
         *,
         thickness: float | None = None,
         friction: float = 0.0,
-        iterations: int = 8,
+        iterations: int = 4,
         relaxation: float = 1.0,
         bound_fraction: float = 0.4,
         pairs_per_vertex: int = 64,

@@ -33,6 +33,7 @@ import taichi as ti
 from .. import validate
 from ..errors import DivergenceError
 from ..runtime import data_oriented
+from ..spatial.bounds import aabb_point_distance_sq
 from ..spatial.distance import point_triangle_closest, segment_segment_closest
 from ..spatial.lbvh import BVH
 from .response import project_spheres
@@ -121,14 +122,19 @@ class SelfContact:
         self.d_edge = ti.field(float, ne)
         self.bound = ti.field(float, nv)
         self.drift = ti.Vector.field(3, float, ())  # mean displacement of the free vertices this step
-        self.capacity = pairs_per_vertex * nv
-        self.vt_pair = ti.Vector.field(2, ti.i32, self.capacity)
-        self.ee_pair = ti.Vector.field(2, ti.i32, self.capacity)
-        # Guard pairs: every pair found within the two sides' reaches, with its distance at x0 [m].
-        self.vt_guard = ti.Vector.field(2, ti.i32, self.capacity)
-        self.ee_guard = ti.Vector.field(2, ti.i32, self.capacity)
-        self.vt_guard_d = ti.field(float, self.capacity)
-        self.ee_guard_d = ti.field(float, self.capacity)
+        # Pairs, in slots per query primitive (vertex v: v K .. v K + vt_n[v]; edge e likewise), written in
+        # the traversal's order: the lists, and so the sweeps, are the same whatever the thread timing.
+        # Every pair found within the two sides' reaches is kept (a guard pair, with its distance at x0
+        # [m]); `near` marks those the proximity sweeps treat.
+        k = self.slots = pairs_per_vertex
+        self.vt_tri = ti.field(ti.i32, nv * k)
+        self.vt_d = ti.field(float, nv * k)
+        self.vt_near = ti.field(ti.i8, nv * k)
+        self.vt_n = ti.field(ti.i32, nv)
+        self.ee_other = ti.field(ti.i32, ne * k)
+        self.ee_d = ti.field(float, ne * k)
+        self.ee_near = ti.field(ti.i8, ne * k)
+        self.ee_n = ti.field(ti.i32, ne)
         self.hold = ti.field(ti.i32, nv)
         # [0, 1] vertex-triangle and edge-edge proximity pairs of the last step; [2] vertex-steps held by
         # their bound (a running total); [3] a sticky overflow flag; [4, 5] guard pairs of the last step;
@@ -141,7 +147,8 @@ class SelfContact:
         self.edge_bvh = BVH(ne)
         self._built = False
         # Made after ti.init, so `float` resolves to the chosen precision.
-        self._acc = ti.types.struct(x=ti.types.vector(3, float), r=float, d=float)
+        vec3 = ti.types.vector(3, float)
+        self._acc = ti.types.struct(x=vec3, lo=vec3, hi=vec3, r=float, d=float, n=ti.i32)
         self.stats = {"vertex_triangle_pairs": 0, "edge_edge_pairs": 0, "clamped": 0}
 
     def settings(self) -> dict:
@@ -183,8 +190,8 @@ class SelfContact:
         c = self.count.to_numpy()
         if c[3]:
             raise DivergenceError(
-                f"self-contact found more than {self.capacity} candidate pairs "
-                f"(pairs_per_vertex too small for this pile, or the cloth is exploding)"
+                f"self-contact found more than pairs_per_vertex={self.slots} pairs for one vertex or "
+                f"edge (raise it for dense piles; or the cloth is exploding)"
             )
         self.stats = {"vertex_triangle_pairs": int(c[0]), "edge_edge_pairs": int(c[1]), "clamped": int(c[2])}
         return self.stats
@@ -249,38 +256,45 @@ class SelfContact:
         return self.x0[t[0]], self.x0[t[1]], self.x0[t[2]]
 
     @ti.func
-    def _add_pair(self, kind: ti.template(), pair, d):
-        """Append to a list: kind 0, 1 the vertex-triangle / edge-edge proximity pairs, 4, 5 the guard
-        pairs (with their distance d)."""
-        k = ti.atomic_add(self.count[kind], 1)
-        if k < self.capacity:
-            if ti.static(kind == 0):
-                self.vt_pair[k] = pair
-            elif ti.static(kind == 1):
-                self.ee_pair[k] = pair
-            elif ti.static(kind == 4):
-                self.vt_guard[k] = pair
-                self.vt_guard_d[k] = d
-            else:
-                self.ee_guard[k] = pair
-                self.ee_guard_d[k] = d
+    def _add_pair(
+        self,
+        ids: ti.template(),
+        dist: ti.template(),
+        near: ti.template(),
+        base,
+        other,
+        d,
+        close,
+        ret: ti.template(),
+    ):
+        """Write pair (query primitive, other) at distance d into the query primitive's next slot."""
+        if ret.n < self.slots:
+            k = base + ret.n
+            ids[k] = other
+            dist[k] = d
+            near[k] = ti.cast(close, ti.i8)
+            ret.n += 1
         else:
             self.count[3] = 1
 
     @ti.func
     def _visit_triangle(self, v, f, ret: ti.template()):
         t = self.tri[f]
-        if t[0] != v and t[1] != v and t[2] != v:
+        reach = ret.r + self.tri_reach[f]
+        # The hierarchy's boxes are grown by the reach on every axis; the Euclidean distance to the bare
+        # box rejects more (a pair farther apart than both reaches needs nothing: see _query).
+        lo = self.tri_bvh.prim_lo[f] + self.tri_reach[f]
+        hi = self.tri_bvh.prim_hi[f] - self.tri_reach[f]
+        if t[0] != v and t[1] != v and t[2] != v and aabb_point_distance_sq(lo, hi, ret.x) < reach * reach:
             a, b, c = self._tri_x0(f)
             w = point_triangle_closest(ret.x, a, b, c)
             d = (ret.x - (w[0] * a + w[1] * b + w[2] * c)).norm()
             # Any distance found is a true one, so taking the minimum with it can only tighten a bound.
             ret.d = ti.min(ret.d, d)
             ti.atomic_min(self.d_tri[f], d)
-            if d < ret.r + self.tri_reach[f]:
-                self._add_pair(4, ti.Vector([v, f]), d)
-                if d - self._apart(v, t[0], t[1], t[2]) < KEEP * self.thickness:
-                    self._add_pair(0, ti.Vector([v, f]), d)
+            if d < reach:
+                close = d - self._apart(v, t[0], t[1], t[2]) < KEEP * self.thickness
+                self._add_pair(self.vt_tri, self.vt_d, self.vt_near, v * self.slots, f, d, close, ret)
 
     @ti.func
     def _apart(self, v, i, j, k):
@@ -297,21 +311,24 @@ class SelfContact:
     def _visit_edge(self, e, g, ret: ti.template()):
         a, b = self.edge[e][0], self.edge[e][1]
         c, d = self.edge[g][0], self.edge[g][1]
-        if g > e and a != c and a != d and b != c and b != d:
+        reach = ret.r + self.edge_reach[g]
+        lo = self.edge_bvh.prim_lo[g] + self.edge_reach[g]
+        hi = self.edge_bvh.prim_hi[g] - self.edge_reach[g]
+        gap = ti.max(lo - ret.hi, 0.0) + ti.max(ret.lo - hi, 0.0)  # between the bare boxes
+        if g > e and a != c and a != d and b != c and b != d and gap.norm_sqr() < reach * reach:
             p0, p1, q0, q1 = self.x0[a], self.x0[b], self.x0[c], self.x0[d]
             st = segment_segment_closest(p0, p1, q0, q1)
             dist = ((p0 + st[0] * (p1 - p0)) - (q0 + st[1] * (q1 - q0))).norm()
-            ti.atomic_min(self.d_edge[e], dist)
+            ret.d = ti.min(ret.d, dist)
             ti.atomic_min(self.d_edge[g], dist)
-            if dist < ret.r + self.edge_reach[g]:
-                self._add_pair(5, ti.Vector([e, g]), dist)
-                if dist - ti.max(self._apart(a, c, d, d), self._apart(b, c, d, d)) < KEEP * self.thickness:
-                    self._add_pair(1, ti.Vector([e, g]), dist)
+            if dist < reach:
+                close = (
+                    dist - ti.max(self._apart(a, c, d, d), self._apart(b, c, d, d)) < KEEP * self.thickness
+                )
+                self._add_pair(self.ee_other, self.ee_d, self.ee_near, e * self.slots, g, dist, close, ret)
 
     @ti.kernel
     def _query(self):
-        for k in ti.static((0, 1, 4, 5)):
-            self.count[k] = 0
         for f in range(self.triangle_count):
             self.d_tri[f] = self.tri_reach[f]
         for e in range(self.edge_count):
@@ -320,9 +337,10 @@ class SelfContact:
         # by T's: one that is not lies farther than r_v + r_T, more than both can move (gamma < 1/2).
         for v in range(self.vertex_count):
             r = self.reach[v]
-            ret = self._acc(x=self.x0[v], r=r, d=r)
+            ret = self._acc(x=self.x0[v], lo=self.x0[v], hi=self.x0[v], r=r, d=r, n=0)
             self.tri_bvh.for_each_overlap(v, ret.x - r, ret.x + r, self._visit_triangle, ret)
             self.d_vert[v] = ret.d
+            self.vt_n[v] = ret.n
 
     @ti.kernel
     def _query_edges(self):
@@ -330,8 +348,10 @@ class SelfContact:
         for e in range(self.edge_count):
             p, q = self.x0[self.edge[e][0]], self.x0[self.edge[e][1]]
             r = self.edge_reach[e]
-            ret = self._acc(x=p, r=r, d=r)
+            ret = self._acc(x=p, lo=ti.min(p, q), hi=ti.max(p, q), r=r, d=r, n=0)
             self.edge_bvh.for_each_overlap(e, ti.min(p, q) - r, ti.max(p, q) + r, self._visit_edge, ret)
+            self.ee_n[e] = ret.n
+            ti.atomic_min(self.d_edge[e], ret.d)
 
     @ti.kernel
     def _bounds(self):
@@ -344,7 +364,18 @@ class SelfContact:
             # With nothing found, d = the vertex's reach and gamma * reach >= its displacement.
             self.bound[v] = self.gamma * d
         for k in ti.static((0, 1, 4, 5)):
-            self.count[k] = ti.min(self.count[k], self.capacity)
+            self.count[k] = 0
+        # Statistics, summed serially: a parallel loop would contend for the four counters.
+        ti.loop_config(serialize=True)
+        for v in range(self.vertex_count):
+            self.count[4] += self.vt_n[v]
+            for j in range(self.vt_n[v]):
+                self.count[0] += ti.cast(self.vt_near[v * self.slots + j], ti.i32)
+        ti.loop_config(serialize=True)
+        for e in range(self.edge_count):
+            self.count[5] += self.ee_n[e]
+            for j in range(self.ee_n[e]):
+                self.count[1] += ti.cast(self.ee_near[e * self.slots + j], ti.i32)
 
     # -- proximity constraints ---------------------------------------------------------------------------
 
@@ -388,8 +419,7 @@ class SelfContact:
                         state.particle_x[self.vertex[idx[k]]] += w * (s * n - cut * rel_t)
 
     @ti.func
-    def _vertex_triangle(self, model: ti.template(), state: ti.template(), k):
-        v, f = self.vt_pair[k][0], self.vt_pair[k][1]
+    def _vertex_triangle(self, model: ti.template(), state: ti.template(), v, f):
         t = self.tri[f]
         a = state.particle_x[self.vertex[t[0]]]
         b = state.particle_x[self.vertex[t[1]]]
@@ -405,8 +435,7 @@ class SelfContact:
         self._pair_correction(model, state, idx, coef, side)
 
     @ti.func
-    def _edge_edge(self, model: ti.template(), state: ti.template(), k):
-        e, g = self.ee_pair[k][0], self.ee_pair[k][1]
+    def _edge_edge(self, model: ti.template(), state: ti.template(), e, g):
         i0, i1, j0, j1 = self.edge[e][0], self.edge[e][1], self.edge[g][0], self.edge[g][1]
         st = segment_segment_closest(
             state.particle_x[self.vertex[i0]],
@@ -430,10 +459,16 @@ class SelfContact:
         ti.loop_config(serialize=True)
         for _ in range(1):
             for _sweep in range(self.iterations):
-                for k in range(self.count[0]):
-                    self._vertex_triangle(model, state, k)
-                for k in range(self.count[1]):
-                    self._edge_edge(model, state, k)
+                for v in range(self.vertex_count):
+                    for j in range(self.vt_n[v]):
+                        k = v * self.slots + j
+                        if self.vt_near[k]:
+                            self._vertex_triangle(model, state, v, self.vt_tri[k])
+                for e in range(self.edge_count):
+                    for j in range(self.ee_n[e]):
+                        k = e * self.slots + j
+                        if self.ee_near[k]:
+                            self._edge_edge(model, state, e, self.ee_other[k])
                 if ti.static(model.collider_count > 0):
                     # A contact must not push a vertex into a collider (the lower of two sheets on a ball).
                     for v in range(self.vertex_count):
@@ -457,34 +492,37 @@ class SelfContact:
         and those relative motions are convex combinations of the vertices' (max over vertex pairs).
         With mark, their vertices are held."""
         self.count[7] = 0
-        for k in range(self.count[4]):
-            v, f = self.vt_guard[k][0], self.vt_guard[k][1]
-            t = self.tri[f]
-            rel = ti.max(
-                self._moves_apart(state, v, t[0]),
-                self._moves_apart(state, v, t[1]),
-                self._moves_apart(state, v, t[2]),
-            )
-            if rel >= SAFE * self.vt_guard_d[k]:
-                self.count[7] += 1
-                if ti.static(mark):
-                    self.hold[v] = 1
-                    for j in ti.static(range(3)):
-                        self.hold[t[j]] = 1
-        for k in range(self.count[5]):
-            e, g = self.ee_guard[k][0], self.ee_guard[k][1]
-            a, b, c, d = self.edge[e][0], self.edge[e][1], self.edge[g][0], self.edge[g][1]
-            rel = ti.max(
-                ti.max(self._moves_apart(state, a, c), self._moves_apart(state, a, d)),
-                ti.max(self._moves_apart(state, b, c), self._moves_apart(state, b, d)),
-            )
-            if rel >= SAFE * self.ee_guard_d[k]:
-                self.count[7] += 1
-                if ti.static(mark):
-                    self.hold[a] = 1
-                    self.hold[b] = 1
-                    self.hold[c] = 1
-                    self.hold[d] = 1
+        for v in range(self.vertex_count):
+            for j in range(self.vt_n[v]):
+                k = v * self.slots + j
+                t = self.tri[self.vt_tri[k]]
+                rel = ti.max(
+                    self._moves_apart(state, v, t[0]),
+                    self._moves_apart(state, v, t[1]),
+                    self._moves_apart(state, v, t[2]),
+                )
+                if rel >= SAFE * self.vt_d[k]:
+                    self.count[7] += 1
+                    if ti.static(mark):
+                        self.hold[v] = 1
+                        for i in ti.static(range(3)):
+                            self.hold[t[i]] = 1
+        for e in range(self.edge_count):
+            for j in range(self.ee_n[e]):
+                k = e * self.slots + j
+                g = self.ee_other[k]
+                a, b, c, d = self.edge[e][0], self.edge[e][1], self.edge[g][0], self.edge[g][1]
+                rel = ti.max(
+                    ti.max(self._moves_apart(state, a, c), self._moves_apart(state, a, d)),
+                    ti.max(self._moves_apart(state, b, c), self._moves_apart(state, b, d)),
+                )
+                if rel >= SAFE * self.ee_d[k]:
+                    self.count[7] += 1
+                    if ti.static(mark):
+                        self.hold[a] = 1
+                        self.hold[b] = 1
+                        self.hold[c] = 1
+                        self.hold[d] = 1
 
     @ti.func
     def _clamp(self, model: ti.template(), state: ti.template(), last: ti.template()):
@@ -531,7 +569,7 @@ def self_contact_options(
     *,
     thickness: float,
     friction: float = 0.0,
-    iterations: int = 8,
+    iterations: int = 4,
     relaxation: float = 1.0,
     bound_fraction: float = 0.4,
     pairs_per_vertex: int = 64,
