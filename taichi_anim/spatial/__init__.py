@@ -27,6 +27,12 @@ from .distance import (
     point_triangle_feature,
     segment_segment_closest,
 )
+from .intersect import (
+    NO_HIT,
+    ray_triangle,
+    segment_triangle,
+    triangle_triangle_intersect,
+)
 
 __all__ = [
     "aabb_contains",
@@ -50,6 +56,10 @@ __all__ = [
     "point_triangle_distance_sq",
     "point_triangle_feature",
     "segment_segment_closest",
+    "NO_HIT",
+    "ray_triangle",
+    "segment_triangle",
+    "triangle_triangle_intersect",
 ]
 
 # Hierarchies over boxes and mesh queries.
