@@ -64,7 +64,15 @@ __all__ = [
 
 # Hierarchies over boxes and mesh queries.
 from .lbvh import BVH, morton3  # noqa: E402
+from .mesh_query import (
+    TriangleMesh,
+    check_mesh,
+    triangle_box_overlap,
+    triangle_solid_angle,
+    winding_number_np,
+)  # noqa: E402, I001
 from .octree import Octree  # noqa: E402
 from .tri_grid import TriGrid  # noqa: E402
 
-__all__ += ["BVH", "Octree", "TriGrid", "morton3"]
+__all__ += ["BVH", "Octree", "TriGrid", "morton3", "TriangleMesh", "check_mesh", "triangle_box_overlap"]
+__all__ += ["triangle_solid_angle", "winding_number_np"]
