@@ -293,12 +293,15 @@ def test_update_rebuilds_only_when_cost_ratio_passes():
     assert tree.cost_ratio() == pytest.approx(1.0)
 
 
-def test_f32_and_parallel_loops():
-    """Single precision, and a capacity above the serial-loop threshold (the parallel build and refit)."""
+@pytest.mark.parametrize("climb", [False, True])
+def test_f32_and_parallel_loops(climb):
+    """Single precision, and a capacity above the serial-loop threshold (the parallel build and refit);
+    also with the GPU's refit (atomic visit counters), forced on the CPU."""
     ta.init("cpu", precision="f32")
     rng = np.random.default_rng(6)
     n, nq = 30_000, 200
     tree = BVH(n)
+    tree._climb = climb
     col = Collector(tree, nq)
     lo, hi = (a.astype(np.float32) for a in random_boxes(n, rng, scale=100.0, shared=0.0))
     lo[5:10], hi[5:10] = lo[4], hi[4]

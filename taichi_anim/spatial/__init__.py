@@ -38,11 +38,23 @@ from .intersect import (
     triangle_triangle_intersect,
 )
 from .lbvh import BVH, morton3
+from .mesh_query import (
+    TriangleMesh,
+    check_mesh,
+    triangle_box_overlap,
+    triangle_solid_angle,
+    winding_number_np,
+)
 from .octree import Octree
 from .tri_grid import TriGrid
 
 __all__ = [
     "BVH",
+    "TriangleMesh",
+    "check_mesh",
+    "triangle_box_overlap",
+    "triangle_solid_angle",
+    "winding_number_np",
     "Octree",
     "TriGrid",
     "morton3",
@@ -74,4 +86,3 @@ __all__ = [
     "ccd_edge_edge",
     "ccd_point_triangle",
 ]
-

@@ -1,16 +1,20 @@
 """Linear bounding volume hierarchy over axis-aligned boxes, built on the device from sorted Morton codes.
 
 Construction: Karras, "Maximizing Parallelism in the Construction of BVHs, Octrees, and k-d Trees",
-HPG 2012. Each box centre gets a 30-bit Morton code (10 bits per axis, centres normalised to the box of
-all centres); codes are sorted (a stable least-significant-digit radix sort, 4 passes of 8 bits, blocks
-of keys histogrammed and scattered in parallel); internal node i of the n - 1 is then built on its own
-(sec. 4, Fig. 4): its direction d = sign(delta(i, i+1) - delta(i, i-1)), the far end of its key range
-by an exponential then binary search on delta > delta(i, i-d), and its split by a binary search for the
-longest common prefix, where delta(i, j) is the length of the common prefix of keys i and j. Equal keys
-are told apart by their positions, delta = 32 + clz(i xor j) (the "index tie-break" of sec. 4), so
-duplicated centres still give a valid binary tree. Boxes are then computed bottom up (Karras sec. 5,
-after Apetrei 2014's atomic visit counters): each leaf climbs towards the root, and the second of two
-children to arrive at a parent computes the parent's box; the first stops.
+HPG 2012. Each box centre gets a 30-bit Morton code (10 bits per axis, centres normalised by the
+largest extent of their box, so cells stay cubes); codes are sorted (a stable least-significant-digit
+radix sort, 4 passes of 8 bits, blocks of keys histogrammed and scattered in parallel); internal node i
+of the n - 1 is then built on its own (sec. 4, Fig. 4): its direction d = sign(delta(i, i+1) -
+delta(i, i-1)), the far end of its key range by an exponential then binary search on delta >
+delta(i, i-d), and its split by a binary search for the longest common prefix, where delta(i, j) is the
+length of the common prefix of keys i and j. Equal keys are told apart by their positions, delta = 32 +
+clz(i xor j) (the "index tie-break" of sec. 4), so duplicated centres still give a valid binary tree.
+Boxes are computed bottom up. On a GPU each leaf climbs towards the root with atomic visit counters
+(Karras sec. 5, Apetrei 2014): the second child to arrive computes its parent. On the CPU one atomic per
+node cost more than the whole refit, so the build lists the internal nodes in depth-first pre-order once
+and a refit sweeps that list backwards (children before parents) on one thread, after the leaves' boxes
+are copied in parallel. Each internal node stores both children's boxes, so a traversal step reads
+one record.
 
 Depth bound: the prefix length delta strictly grows from a node to its internal children and lies in
 [2, 63] (keys use 30 of 32 bits; positions differ within 31 bits), so no root-to-leaf path has more than
@@ -39,7 +43,7 @@ from taichi.lang import impl
 from .. import validate
 from ..collision.prefix_sum import PrefixSum
 from ..errors import ParameterError
-from ..runtime import data_oriented, serial_loops
+from ..runtime import backend_name, data_oriented, serial_loops
 from .bounds import INV_DIR_PARALLEL, aabb_overlap, aabb_point_distance_sq, aabb_ray, aabb_surface_area
 
 STACK_SIZE = 64
@@ -132,6 +136,9 @@ class BVH:
         self.n = 0
         self.build_count = 0
         self._cuda = impl.current_cfg().arch == ti.cuda
+        # Refit: a serial sweep in reverse pre-order on the CPU, the parallel climb on GPUs.
+        self._climb = backend_name() != "cpu"
+        self.refit_order = ti.field(ti.i32, inner)
 
     # ---------------------------------------------------------------------------------------------
     # Python scope
@@ -178,9 +185,32 @@ class BVH:
             else:
                 self._radix_pass(self._code_tmp, self._id_tmp, self.code, self.prim_id, s * RADIX_BITS, n)
         self._hierarchy(n)
+        if ti.static(not self._climb):
+            self._post_order(n)
         self._refit(n)
         for _ in range(1):
             self.built_quality[None] = self.quality[None]
+
+    @ti.func
+    def _post_order(self, n):
+        """Internal nodes in depth-first pre-order (serial, O(n)): read backwards, every node comes
+        after all of its descendants, the order of the CPU refit."""
+        for _ in range(1):
+            if n > 1:
+                stack = ti.Vector([0] * STACK_SIZE, ti.i32)
+                stack[0] = 0
+                top = 1
+                count = 0
+                while top > 0:
+                    top -= 1
+                    node = stack[top]
+                    self.refit_order[count] = node
+                    count += 1
+                    ab = self.node_child[node]
+                    for side in ti.static(range(2)):
+                        if ab[side] < self.leaf_base:
+                            stack[top] = ab[side]
+                            top += 1
 
     @ti.func
     def _morton(self, n):
@@ -203,12 +233,13 @@ class BVH:
                 ti.atomic_max(self._centre_box[1][a], hi[a])
         ti.loop_config(serialize=self._serial)
         for k in range(n):
+            # One scale for all axes (the largest extent): Morton cells stay cubes, so a flat or thin
+            # mesh does not spend a third of the code's bits on its thin axis.
             lo = self._centre_box[0]
-            ext = self._centre_box[1] - lo
-            inv = ti.Vector([0.0, 0.0, 0.0], float)
-            for a in ti.static(range(3)):
-                if ext[a] > 0.0:
-                    inv[a] = 1.0 / ext[a]
+            ext = (self._centre_box[1] - lo).max()
+            inv = 0.0
+            if ext > 0.0:
+                inv = 1.0 / ext
             c = 0.5 * (self.prim_lo[k] + self.prim_hi[k])
             self.code[k] = morton3((c - lo) * inv)
             self.prim_id[k] = k
@@ -336,7 +367,47 @@ class BVH:
 
     @ti.func
     def _refit(self, n):
-        """Bottom-up boxes with visit counters: the second child to reach a parent computes it."""
+        """Bottom-up boxes: leaves in parallel, then internal nodes in reverse pre-order (CPU), or with
+        visit counters (GPU)."""
+        if ti.static(self._climb):
+            self._refit_climb(n)
+        else:
+            self._refit_sweep(n)
+        for _ in range(1):
+            q = 0.0
+            if n > 1:
+                area = aabb_surface_area(self.root_box[0], self.root_box[1])
+                if area > 0.0:
+                    q = self.node_cost[0] / area
+            self.quality[None] = q
+
+    @ti.func
+    def _union(self, node):
+        """Box of internal node `node` from its children's boxes, written into its parent's record,
+        and its subtree cost."""
+        lo_a, hi_a = self._child_box(node, 0)
+        lo_b, hi_b = self._child_box(node, 1)
+        lo = ti.min(lo_a, lo_b)
+        hi = ti.max(hi_a, hi_b)
+        self._store_box(node, lo, hi)
+        ab = self.node_child[node]
+        self.node_cost[node] = aabb_surface_area(lo, hi) + self._child_cost(ab[0]) + self._child_cost(ab[1])
+
+    @ti.func
+    def _refit_sweep(self, n):
+        """CPU: no atomics (they dominated the climb: one per node); a serial sweep over the internal
+        nodes reads records that the previous steps just wrote, so it stays in cache."""
+        ti.loop_config(serialize=self._serial)
+        for k in range(n):
+            p = self.prim_id[k]
+            self._store_box(self.leaf_base + k, self.prim_lo[p], self.prim_hi[p])
+        ti.loop_config(serialize=True)
+        for t in range(n - 1):
+            self._union(self.refit_order[n - 2 - t])
+
+    @ti.func
+    def _refit_climb(self, n):
+        """GPU: each leaf climbs; the second child to reach a parent computes it (Apetrei 2014)."""
         ti.loop_config(serialize=self._serial)
         for t in range(n - 1):
             self.node_visits[t] = 0
@@ -357,23 +428,8 @@ class BVH:
                     if ti.atomic_add(self.node_visits[parent], 1) == 0:
                         climbing = False  # the sibling is not done yet: it will compute the parent
                     else:
-                        lo_a, hi_a = self._child_box(parent, 0)
-                        lo_b, hi_b = self._child_box(parent, 1)
-                        lo = ti.min(lo_a, lo_b)
-                        hi = ti.max(hi_a, hi_b)
-                        self._store_box(parent, lo, hi)
-                        ab = self.node_child[parent]
-                        self.node_cost[parent] = (
-                            aabb_surface_area(lo, hi) + self._child_cost(ab[0]) + self._child_cost(ab[1])
-                        )
+                        self._union(parent)
                         node = parent
-        for _ in range(1):
-            q = 0.0
-            if n > 1:
-                area = aabb_surface_area(self.root_box[0], self.root_box[1])
-                if area > 0.0:
-                    q = self.node_cost[0] / area
-            self.quality[None] = q
 
     # ---------------------------------------------------------------------------------------------
     # queries (Taichi scope)

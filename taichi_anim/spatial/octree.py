@@ -3,11 +3,13 @@
 Ulrich, "Loose Octrees", Game Programming Gems 1, 2000, sec. 4.11: an octree over a root cube of side S
 whose cells at level l (side h_l = S / 2^l) are loosened to twice their size, so an object whose largest
 extent e is <= h_l fits in the loose cell of the level-l cell containing its centre. Each object goes to
-the deepest level where it fits (level = floor(log2(S / e)), capped at MAX_LEVEL; zero-extent objects at
-MAX_LEVEL), so cells match the objects' sizes whatever the mix. Nodes are implicit: a node (l, cell) is
-one key of level l's hash table (Teschner et al. 2003 hashing, 2^k >= 2 * objects buckets per level,
-the tables laid out level after level), filled by a counting sort of the objects by bucket (Green 2010,
-as in `collision/neighbors.py`), each bucket sorted by object index so queries are reproducible.
+the deepest level where it fits (level = floor(log2(S / e)), capped at MAX_LEVEL), but no deeper than
+the median object's level (smaller objects share those cells: cells far smaller than most objects would
+make every query enumerate many empty cells), so cells match the objects' sizes whatever the mix. Nodes
+are implicit: a node (l, cell) is one key of level l's hash table (Teschner et al. 2003 hashing,
+2^k >= 2 * objects buckets per level, the tables laid out level after level), filled by a counting sort
+of the objects by bucket (Green 2010, as in `collision/neighbors.py`), each bucket sorted by object index
+so queries are reproducible.
 
 Query (`for_each_overlap(i, lo, hi, visit, ret)`, `for_each_in_sphere(i, c, r, visit, ret)`): for every
 occupied level, the cells whose loose boxes meet the query are those with centre cell c in
@@ -28,6 +30,7 @@ from .bounds import aabb_overlap, aabb_point_distance_sq
 
 MAX_LEVEL = 16  # 2^16 cells per axis at the finest level; the cell coordinates stay well inside i32
 LEVELS = MAX_LEVEL + 1
+BLOCK = 1024  # objects per block of the reductions
 SLACK = 1e-3  # in cells: covers round-off in the cell coordinates of centres and query bounds
 
 
@@ -67,7 +70,7 @@ class Octree:
         self.root_box = ti.Vector.field(3, float, 2)  # union of all boxes
         self.origin = ti.Vector.field(3, float, ())
         self.count = ti.field(ti.i32, ())
-        self.grid_level = ti.field(ti.i32, ())  # single_level: the deepest level where every box fits
+        self.grid_level = ti.field(ti.i32, ())  # deepest level used (grid: the one level)
         self.n = 0
         self.build_count = 0
         self._serial = serial_loops(c)
@@ -95,18 +98,25 @@ class Octree:
 
     @ti.kernel
     def _build(self, n: ti.i32):
+        blocks = (n + BLOCK - 1) // BLOCK
         for _ in range(1):
             self.count[None] = n
             self.root_box[0] = ti.Vector([ti.math.inf] * 3, float)
             self.root_box[1] = ti.Vector([-ti.math.inf] * 3, float)
-            self.grid_level[None] = MAX_LEVEL
             for level in range(LEVELS):
                 self.level_count[level] = 0
+        # Per-block reductions, then one atomic per block (atomics on one address from every object
+        # serialise the threads).
         ti.loop_config(serialize=self._serial)
-        for k in range(n):
+        for b in range(blocks):
+            lo = ti.Vector([ti.math.inf] * 3, float)
+            hi = ti.Vector([-ti.math.inf] * 3, float)
+            for k in range(b * BLOCK, ti.min(n, (b + 1) * BLOCK)):
+                lo = ti.min(lo, self.prim_lo[k])
+                hi = ti.max(hi, self.prim_hi[k])
             for a in ti.static(range(3)):
-                ti.atomic_min(self.root_box[0][a], self.prim_lo[k][a])
-                ti.atomic_max(self.root_box[1][a], self.prim_hi[k][a])
+                ti.atomic_min(self.root_box[0][a], lo[a])
+                ti.atomic_max(self.root_box[1][a], hi[a])
         for _ in range(1):
             lo = self.root_box[0]
             side = (self.root_box[1] - lo).max()
@@ -114,26 +124,56 @@ class Octree:
             self.origin[None] = lo
             for level in range(LEVELS):
                 self.level_inv_h[level] = ti.cast(1 << level, float) / side
+        # Each object's own level: the deepest whose cells are as large as its largest extent.
         ti.loop_config(serialize=self._serial)
-        for k in range(n):
-            e = (self.prim_hi[k] - self.prim_lo[k]).max()
-            level = 0
-            while level < MAX_LEVEL and e * self.level_inv_h[level + 1] <= 1.0:
-                level += 1
-            self.prim_level[k] = level
-            if ti.static(self.single_level):
-                ti.atomic_min(self.grid_level[None], level)
+        for b in range(blocks):
+            hist = ti.Vector([0] * LEVELS, ti.i32)
+            for k in range(b * BLOCK, ti.min(n, (b + 1) * BLOCK)):
+                e = (self.prim_hi[k] - self.prim_lo[k]).max()
+                level = 0
+                while level < MAX_LEVEL and e * self.level_inv_h[level + 1] <= 1.0:
+                    level += 1
+                self.prim_level[k] = level
+                hist[level] += 1
+            for level in ti.static(range(LEVELS)):
+                if hist[level] > 0:
+                    ti.atomic_add(self.level_count[level], hist[level])
+        # The level objects are stored at: octree, their own but no deeper than the median object's
+        # (cells far smaller than most objects would make every query enumerate many empty cells);
+        # grid, the coarsest level any object needs, for all.
+        for _ in range(1):
+            total = 0
+            cap = MAX_LEVEL
+            found = False
+            for level in range(LEVELS):
+                total += self.level_count[level]
+                if not found:
+                    if ti.static(self.single_level):
+                        found = total > 0
+                    else:
+                        found = 2 * total >= n
+                    if found:
+                        cap = level
+            self.grid_level[None] = cap
+            moved = 0
+            for level in range(LEVELS):
+                if ti.static(self.single_level):
+                    moved += self.level_count[level]
+                    self.level_count[level] = 0
+                elif level > cap:
+                    moved += self.level_count[level]
+                    self.level_count[level] = 0
+            self.level_count[cap] += moved
         ti.loop_config(serialize=self._serial)
         for k in range(n):
             level = self.prim_level[k]
             if ti.static(self.single_level):
                 level = self.grid_level[None]
-                self.prim_level[k] = level
+            else:
+                level = ti.min(level, self.grid_level[None])
+            self.prim_level[k] = level
             c = 0.5 * (self.prim_lo[k] + self.prim_hi[k])
             self.prim_cell[k] = self._cell_of(c, level)
-        ti.loop_config(serialize=self._serial)
-        for k in range(n):
-            ti.atomic_add(self.level_count[self.prim_level[k]], 1)
         for _ in range(1):
             start = 0
             for level in range(LEVELS):
