@@ -63,25 +63,33 @@ def _slide_and_respond(c: ti.template(), x, v, d, n, dx, rest_speed):
 
 @ti.func
 def _project_each(colliders: ti.template(), x, v, r, rest_speed, x_prev, t, h):
+    # x_prev is where the step started (x itself: no displacement); on a moving surface the displacement
+    # and the velocity are taken relative to the surface.
     for c in ti.static(colliders):
-        d = c.sdf(x, t) - r
-        if d < 0.0:
-            n = c.normal(x, t)
-            x -= d * n
-            # x_prev is where the step started (x itself: no displacement); on a moving surface the
-            # displacement and the velocity are taken relative to the surface.
-            if ti.static(c.moving):
-                vs = c.velocity(x, t)
+        if ti.static(c.moving):
+            d, n, vs = c.contact(x, t)  # one pose evaluation for all three
+            d -= r
+            if d < 0.0:
+                x -= d * n
                 x, v = _slide_and_respond(c, x, v - vs, d, n, x - x_prev - h * vs, rest_speed)
                 v += vs
-            else:
+        else:
+            d = c.sdf(x, t) - r
+            if d < 0.0:
+                n = c.normal(x, t)
+                x -= d * n
                 x, v = _slide_and_respond(c, x, v, d, n, x - x_prev, rest_speed)
     # The friction shift moves a point back along one surface, possibly a hair into another (a corner):
     # one more position-only pass keeps every collider's sdf >= r.
     for c in ti.static(colliders):
-        d = c.sdf(x, t) - r
-        if d < 0.0:
-            x -= d * c.normal(x, t)
+        if ti.static(c.moving):
+            d, n, _ = c.contact(x, t)
+            if d < r:
+                x -= (d - r) * n
+        else:
+            d = c.sdf(x, t) - r
+            if d < 0.0:
+                x -= d * c.normal(x, t)
     return x, v
 
 
@@ -112,6 +120,31 @@ def _first_hit(colliders: ti.template(), xs, xe, t, h, r):
 
 
 @ti.func
+def _impact(colliders: ti.template(), xs, vs, xe, ve, frac, t, dt, r, rest_speed):
+    """The first impact on what is left of the step (the path xs -> xe, the last frac of [t, t + dt]),
+    resolved: the state at impact and the rest of the step with the new velocity (unchanged if none)."""
+    tau, n, e, mu, vsurf = _first_hit(colliders, xs, xe, t + (1.0 - frac) * dt, frac * dt, r)
+    if tau <= 1.0:
+        xh = xs + tau * (xe - xs)
+        # Velocity at impact interpolated along the step; the rest of the step keeps the step's velocity
+        # change (gravity keeps acting after the bounce).
+        vi = vs + tau * (ve - vs)
+        if ti.static(any_moving(colliders)):
+            vi -= vsurf
+        if -vi.dot(n) <= rest_speed:
+            e = 0.0
+        vh = respond(vi, n, e, mu)
+        if ti.static(any_moving(colliders)):
+            vh += vsurf
+        rest = 1.0 - tau
+        ve = vh + rest * (ve - vs)
+        frac *= rest
+        xs, vs = xh, vh
+        xe = xh + frac * dt * ve
+    return xs, vs, xe, ve, frac
+
+
+@ti.func
 def collide(colliders: ti.template(), mode: ti.template(), x0, v0, x1, v1, t, dt, r, rest_speed):
     """End-of-step position and velocity after collisions; x0, v0 start the step at time t [s], x1, v1
     end it at t + dt; r [m] the particle's radius (0 for points); impacts at or below rest_speed [m/s]
@@ -120,26 +153,15 @@ def collide(colliders: ti.template(), mode: ti.template(), x0, v0, x1, v1, t, dt
     v = v1
     if ti.static(mode == CollisionMode.BACKWARD):
         xs, vs, xe, ve = x0, v0, x1, v1
-        frac = 1.0  # fraction of dt still to run from xs
-        for _ in ti.static(range(MAX_HITS)):
-            tau, n, e, mu, vsurf = _first_hit(colliders, xs, xe, t + (1.0 - frac) * dt, frac * dt, r)
-            if tau <= 1.0:
-                xh = xs + tau * (xe - xs)
-                # Velocity at impact interpolated along the step; the rest of the step keeps the
-                # step's velocity change (gravity keeps acting after the bounce).
-                vi = vs + tau * (ve - vs)
-                if ti.static(any_moving(colliders)):
-                    vi -= vsurf
-                if -vi.dot(n) <= rest_speed:
-                    e = 0.0
-                vh = respond(vi, n, e, mu)
-                if ti.static(any_moving(colliders)):
-                    vh += vsurf
-                rest = 1.0 - tau
-                ve = vh + rest * (ve - vs)
-                frac *= rest
-                xs, vs = xh, vh
-                xe = xh + frac * dt * ve
+        frac = ti.cast(1.0, float)  # fraction of dt still to run from xs
+        if ti.static(any_moving(colliders)):
+            # A run-time loop: a moving collider's tests evaluate poses, and unrolling them MAX_HITS
+            # times made compilation take minutes.
+            for _ in range(MAX_HITS):
+                xs, vs, xe, ve, frac = _impact(colliders, xs, vs, xe, ve, frac, t, dt, r, rest_speed)
+        else:
+            for _ in ti.static(range(MAX_HITS)):
+                xs, vs, xe, ve, frac = _impact(colliders, xs, vs, xe, ve, frac, t, dt, r, rest_speed)
         # Impacts left after MAX_HITS (the step's velocity change keeps driving the path into a surface):
         # stop at the first contact on what is left of the path instead of letting the safety projection
         # push the particle out of whichever side is nearest, possibly the far side of a thin solid.
