@@ -9,7 +9,7 @@ start it on the CPU.
 from .blobs import BlobField, BlobMesh, IsosurfaceMethod
 from .builder import Builder
 from .cloth import Cloth, ClothMaterial, FabricMaterial
-from .collision import CollisionMode
+from .collision import CollisionMode, RigidMotion
 from .collision.neighbors import NeighborMethod, make_neighbor_search
 from .errors import DivergenceError, ParameterError
 from .integrators import (
@@ -89,6 +89,7 @@ __all__ = [
     "NeighborMethod",
     "ParameterError",
     "ParticleSnapshot",
+    "RigidMotion",
     "State",
     "backend_name",
     "init",

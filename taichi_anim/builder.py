@@ -9,7 +9,7 @@ import numpy as np
 
 from . import geometry, validate
 from .cloth import Cloth, ClothMaterial, FabricMaterial
-from .collision import ColliderPlane, ColliderSolidBox, ColliderSphere
+from .collision import ColliderPlane, ColliderSolidBox, ColliderSphere, RigidMotion
 from .errors import ParameterError
 from .model import Model
 from .particles import Emitter, EmitterShape
@@ -346,24 +346,41 @@ class Builder:
         self._anchored.add(int(particle))
 
     def add_collider_plane(
-        self, normal=(0.0, 1.0, 0.0), offset: float = 0.0, *, restitution: float = 0.5, friction: float = 0.0
+        self,
+        normal=(0.0, 1.0, 0.0),
+        offset: float = 0.0,
+        *,
+        restitution: float = 0.5,
+        friction: float = 0.0,
+        motion: RigidMotion | None = None,
     ) -> None:
         """Solid half-space {x : n.x < offset}; restitution in [0,1] scales the normal velocity; friction
-        is the Coulomb coefficient on the impact impulse."""
+        is the Coulomb coefficient on the impact impulse; motion: a RigidMotion that moves the plane
+        (normal and offset are then in its frame), or None (static)."""
         self._colliders.append(
             ColliderPlane(
                 validate.unit3("normal", normal),
                 float(offset),
                 validate.in_range("restitution", restitution, 0.0, 1.0),
                 validate.non_negative("friction", friction),
+                _motion(motion),
             )
         )
 
     def add_collider_box(
-        self, lo, hi, *, restitution: float = 0.5, friction: float = 0.0, solid: bool = False
+        self,
+        lo,
+        hi,
+        *,
+        restitution: float = 0.5,
+        friction: float = 0.0,
+        solid: bool = False,
+        motion: RigidMotion | None = None,
     ) -> None:
         """Axis-aligned box lo..hi [m]. solid=False: a container (six inward-facing planes that keep
-        particles inside); solid=True: a solid block (a thin one is a slab) that keeps them out."""
+        particles inside); solid=True: a solid block (a thin one is a slab) that keeps them out;
+        motion: a RigidMotion that moves the box (lo, hi in its frame), or None (static)."""
+        motion = _motion(motion)
         lo = np.asarray(validate.vec3("lo", lo))
         hi = np.asarray(validate.vec3("hi", hi))
         if np.any(hi <= lo):
@@ -371,25 +388,34 @@ class Builder:
         e = validate.in_range("restitution", restitution, 0.0, 1.0)
         mu = validate.non_negative("friction", friction)
         if solid:
-            self._colliders.append(ColliderSolidBox(tuple(lo), tuple(hi), e, mu))
+            self._colliders.append(ColliderSolidBox(tuple(lo), tuple(hi), e, mu, motion))
             return
-        self._containers.append((lo, hi))
+        if motion is None:
+            self._containers.append((lo, hi))  # a fixed domain for the sphere contacts' bounded grid
         for axis in range(3):
             n = np.zeros(3)
             n[axis] = 1.0
-            self._colliders.append(ColliderPlane(tuple(n), lo[axis], e, mu))
-            self._colliders.append(ColliderPlane(tuple(-n), -hi[axis], e, mu))
+            self._colliders.append(ColliderPlane(tuple(n), lo[axis], e, mu, motion))
+            self._colliders.append(ColliderPlane(tuple(-n), -hi[axis], e, mu, motion))
 
     def add_collider_sphere(
-        self, center, radius: float, *, restitution: float = 0.5, friction: float = 0.0
+        self,
+        center,
+        radius: float,
+        *,
+        restitution: float = 0.5,
+        friction: float = 0.0,
+        motion: RigidMotion | None = None,
     ) -> None:
-        """Solid ball of `radius` [m] at `center` [m]; restitution and Coulomb friction as for planes."""
+        """Solid ball of `radius` [m] at `center` [m]; restitution and Coulomb friction as for planes;
+        motion: a RigidMotion that moves the ball (center in its frame), or None (static)."""
         self._colliders.append(
             ColliderSphere(
                 validate.vec3("center", center),
                 validate.positive("radius", radius),
                 validate.in_range("restitution", restitution, 0.0, 1.0),
                 validate.non_negative("friction", friction),
+                _motion(motion),
             )
         )
 
@@ -557,3 +583,9 @@ class Builder:
         lo = np.min([c[0] for c in self._containers], axis=0)
         hi = np.max([c[1] for c in self._containers], axis=0)
         return lo, hi
+
+
+def _motion(motion) -> RigidMotion | None:
+    if motion is not None and not isinstance(motion, RigidMotion):
+        raise ParameterError(f"motion must be a RigidMotion or None, got {motion!r}")
+    return motion

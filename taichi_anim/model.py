@@ -43,6 +43,8 @@ class Model:
         self.emitters = list(emitters)
         self.emitter_count = len(self.emitters)
         self.collider_count = len(self.colliders)
+        for c in self.colliders:
+            c.allocate()  # moving and mesh colliders write their keyframes / geometry into fields
         self.trail_length = trail_length
         self.seed = seed
         self._x0 = np.asarray(x, dtype=np.float64)

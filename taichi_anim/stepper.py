@@ -14,13 +14,14 @@ from .errors import ParameterError
 
 @ti.func
 def finish_particle(
-    model: ti.template(), state: ti.template(), mode: ti.template(), i, x0, v0, x1, v1, h, step
+    model: ti.template(), state: ti.template(), mode: ti.template(), i, x0, v0, x1, v1, t, h, step
 ):
-    """The end of a step for particle i, fused into a method's last kernel: colliders against the step's
-    start point (x0, v0), a count of non-finite results for the divergence watch, and the write."""
+    """The end of a step [t, t + h] for particle i, fused into a method's last kernel: colliders against
+    the step's start point (x0, v0), a count of non-finite results for the divergence watch, and the
+    write."""
     x, v = x1, v1
     if ti.static(model.collider_count > 0):
-        x, v = collide(model.colliders, mode, x0, v0, x1, v1, h, model.radius(i), model.rest_speed)
+        x, v = collide(model.colliders, mode, x0, v0, x1, v1, t, h, model.radius(i), model.rest_speed)
     total = x.sum() + v.sum()  # NaN or inf in any component makes the sum NaN or inf
     if ti.math.isnan(total) or ti.math.isinf(total):
         ti.atomic_add(state.nonfinite_count[None], 1)

@@ -1,10 +1,15 @@
-"""Static colliders as signed distances (positive outside the solid) with a swept segment test.
+"""Colliders as signed distances (positive outside the solid) with a swept segment test; static or
+moving rigidly (collision/motion.py).
 
-Each collider provides `@ti.func`s: `sdf(x)`, `normal(x)` (outward, for projection) and
-`sweep(x0, x1, r) -> (tau, n)`: the fraction tau in [0, 1] of the segment x0 -> x1 at which a sphere of
-radius r (0 for a point) centred on it touches the solid (2.0 if it does not), and the touched face's
-normal. A sphere touches when sdf(x) < r. Segment-box uses the slab method
-(Kay & Kajiya, "Ray Tracing Complex Scenes", 1986).
+Each collider provides `@ti.func`s of a world point x and a time t [s]: `sdf(x, t)`, `normal(x, t)`
+(outward, for projection), `velocity(x, t)` (the surface's velocity there, 0 for a static collider) and
+`sweep(x0, x1, t, h, r) -> (tau, n, v_surface)`: the fraction tau in [0, 1] of the step [t, t + h], along
+which a sphere of radius r (0 for a point) goes from x0 to x1, at which it touches the solid (2.0 if it
+does not), the touched face's normal and the surface's velocity there. A sphere touches when
+sdf(x, t) < r. A static collider (`moving` False) ignores t and compiles to the time-free tests; a moving
+one runs the same shape tests in its own frame, the step's start point placed with the start pose and its
+end point with the end pose (exact for translations, first order in the angle turned per step for
+rotations). Segment-box uses the slab method (Kay & Kajiya, "Ray Tracing Complex Scenes", 1986).
 """
 
 from enum import Enum
@@ -12,11 +17,16 @@ from enum import Enum
 import taichi as ti
 
 from ..runtime import data_oriented
+from .motion import quat_rotate, quat_rotate_inverse
 
 NO_HIT = 2.0
 # A point counts as on a surface up to this distance [m]: projection leaves contacts exactly there only to
 # round-off, and a swept test that required sdf >= r strictly would miss the next step's impact.
 ON_SURFACE = 1e-6
+# A path whose approach to a surface is below this fraction of its length (the cosine of its angle with the
+# surface) slides along it: round-off decides the sign of such an approach, and counting it as an impact
+# at tau = 0 would stop a sliding particle for the step. The end-of-step projection handles those.
+GRAZING = 1e-5
 
 
 class CollisionMode(Enum):
@@ -32,62 +42,126 @@ class CollisionMode(Enum):
     BACKWARD = "backward"
 
 
-@data_oriented
-class ColliderPlane:
-    """Half-space n . x < offset is solid. normal (3,) unit, offset [m], restitution e in [0, 1],
-    friction mu >= 0 (Coulomb, on the collision impulse)."""
+class _RigidCollider:
+    """What analytic colliders share: the time protocol around shape tests in the collider's own frame
+    (`_sdf`, `_normal`, `_sweep`), and an optional RigidMotion. `moving` is a compile-time flag: response
+    code reads surface velocities only when a collider moves."""
 
-    def __init__(self, normal, offset: float, restitution: float, friction: float):
+    motion = None
+    needs_prepare = False  # no Python-side work before a step
+
+    @property
+    def moving(self) -> bool:
+        return self.motion is not None
+
+    def allocate(self) -> None:
+        """Write what the kernels read into fields (called once by the Model, after Taichi starts)."""
+        if self.motion is not None:
+            self.motion.allocate()
+
+    def _settings(self, **shape) -> dict:
+        out = {**shape, "restitution": self.restitution, "friction": self.friction}
+        if self.motion is not None:
+            out["motion"] = self.motion.settings()
+        return out
+
+    @ti.func
+    def sdf(self, x, t):
+        p = x
+        if ti.static(self.moving):
+            p = self.motion.to_local(x, t)
+        return self._sdf(p)
+
+    @ti.func
+    def normal(self, x, t):
+        n = ti.Vector.zero(float, 3)
+        if ti.static(self.moving):
+            q, tr = self.motion.pose_at(t)
+            n = quat_rotate(q, self._normal(quat_rotate_inverse(q, x - tr)))
+        else:
+            n = self._normal(x)
+        return n
+
+    @ti.func
+    def velocity(self, x, t):
+        v = ti.Vector.zero(float, 3)
+        if ti.static(self.moving):
+            v = self.motion.velocity(x, t)
+        return v
+
+    @ti.func
+    def contact(self, x, t):
+        """(sdf, normal, surface velocity) at x, t from one evaluation of the pose (moving colliders)."""
+        q, tr, omega, vel = self.motion.motion_at(t)
+        p = quat_rotate_inverse(q, x - tr)
+        return self._sdf(p), quat_rotate(q, self._normal(p)), omega.cross(x - tr) + vel
+
+    @ti.func
+    def sweep(self, x0, x1, t, h, r):
+        tau = ti.cast(NO_HIT, float)
+        n = ti.Vector.zero(float, 3)
+        vs = ti.Vector.zero(float, 3)
+        if ti.static(self.moving):
+            # The segment in the collider's frame: start point with the start pose, end with the end pose.
+            m = self.motion
+            tau, n = self._sweep(m.to_local(x0, t), m.to_local(x1, t + h), r)
+            if tau <= 1.0:
+                q, tr, omega, vel = m.motion_at(t + tau * h)
+                n = quat_rotate(q, n)
+                vs = omega.cross(x0 + tau * (x1 - x0) - tr) + vel
+        else:
+            tau, n = self._sweep(x0, x1, r)
+        return tau, n, vs
+
+
+@data_oriented
+class ColliderPlane(_RigidCollider):
+    """Half-space n . x < offset is solid (in the motion's frame, if it moves). normal (3,) unit, offset
+    [m], restitution e in [0, 1], friction mu >= 0 (Coulomb, on the collision impulse); motion: a
+    RigidMotion or None (static)."""
+
+    def __init__(self, normal, offset: float, restitution: float, friction: float, motion=None):
         self.n = tuple(float(c) for c in normal)
         self.offset = float(offset)
         self.restitution = float(restitution)
         self.friction = float(friction)
+        self.motion = motion
 
     def settings(self) -> dict:
-        return {
-            "type": "plane",
-            "normal": self.n,
-            "offset": self.offset,
-            "restitution": self.restitution,
-            "friction": self.friction,
-        }
+        return self._settings(type="plane", normal=self.n, offset=self.offset)
 
     @ti.func
-    def sdf(self, x):
+    def _sdf(self, x):
         return ti.Vector(self.n, dt=float).dot(x) - self.offset
 
     @ti.func
-    def normal(self, x):
+    def _normal(self, x):
         return ti.Vector(self.n, dt=float)
 
     @ti.func
-    def sweep(self, x0, x1, r):
-        d0 = self.sdf(x0) - r
-        d1 = self.sdf(x1) - r
+    def _sweep(self, x0, x1, r):
+        d0 = self._sdf(x0) - r
+        d1 = self._sdf(x1) - r
         tau = NO_HIT
-        if d0 >= -ON_SURFACE and d1 < 0.0 and d1 < d0:
+        if d0 >= -ON_SURFACE and d1 < 0.0 and d0 - d1 > GRAZING * (x1 - x0).norm():
             tau = ti.max(d0, 0.0) / (ti.max(d0, 0.0) - d1)
         return tau, ti.Vector(self.n, dt=float)
 
 
 @data_oriented
-class ColliderSolidBox:
-    """Axis-aligned solid box lo <= x <= hi [m] (a thin one is a slab); particles stay outside."""
+class ColliderSolidBox(_RigidCollider):
+    """Solid box lo <= x <= hi [m], axis-aligned in the motion's frame (a thin one is a slab); particles
+    stay outside."""
 
-    def __init__(self, lo, hi, restitution: float, friction: float):
+    def __init__(self, lo, hi, restitution: float, friction: float, motion=None):
         self.lo = tuple(float(c) for c in lo)
         self.hi = tuple(float(c) for c in hi)
         self.restitution = float(restitution)
         self.friction = float(friction)
+        self.motion = motion
 
     def settings(self) -> dict:
-        return {
-            "type": "solid_box",
-            "lo": self.lo,
-            "hi": self.hi,
-            "restitution": self.restitution,
-            "friction": self.friction,
-        }
+        return self._settings(type="solid_box", lo=self.lo, hi=self.hi)
 
     @ti.func
     def _face(self, x):
@@ -106,7 +180,7 @@ class ColliderSolidBox:
         return best, n
 
     @ti.func
-    def sdf(self, x):
+    def _sdf(self, x):
         lo = ti.Vector(self.lo, dt=float)
         hi = ti.Vector(self.hi, dt=float)
         q = ti.max(lo - x, x - hi)
@@ -115,12 +189,12 @@ class ColliderSolidBox:
         return outside if q.max() > 0.0 else -inside_depth
 
     @ti.func
-    def normal(self, x):
+    def _normal(self, x):
         _, n = self._face(x)
         return n
 
     @ti.func
-    def sweep(self, x0, x1, r):
+    def _sweep(self, x0, x1, r):
         # The box grown by r on every side (its corners square, not rounded: conservative).
         lo = ti.Vector(self.lo, dt=float) - r
         hi = ti.Vector(self.hi, dt=float) + r
@@ -142,37 +216,43 @@ class ColliderSolidBox:
                 t_exit = ti.min(t_exit, ti.max(ta, tb))
         tau = NO_HIT
         n = ti.Vector.zero(float, 3)
-        if t_enter <= t_exit and t_enter <= 1.0 and self.sdf(x0) >= r - ON_SURFACE and t_exit >= 0.0:
+        # An impact enters through the face of `axis`: the start point lies at most ON_SURFACE behind it
+        # (not inside the box, as near a square corner of the grown box) and the path is not sliding
+        # along it.
+        entering = t_enter * ti.abs(d[axis]) >= -ON_SURFACE and ti.abs(d[axis]) > GRAZING * d.norm()
+        if (
+            t_enter <= t_exit
+            and t_enter <= 1.0
+            and self._sdf(x0) >= r - ON_SURFACE
+            and t_exit >= 0.0
+            and entering
+        ):
             tau = ti.max(t_enter, 0.0)
             n[axis] = -1.0 if d[axis] > 0.0 else 1.0
         return tau, n
 
 
 @data_oriented
-class ColliderSphere:
-    """Solid ball |x - center| < radius [m]; particles (and cloth vertices, radius = thickness) stay out."""
+class ColliderSphere(_RigidCollider):
+    """Solid ball |x - center| < radius [m] (center in the motion's frame); particles (and cloth
+    vertices, radius = thickness) stay out."""
 
-    def __init__(self, center, radius: float, restitution: float, friction: float):
+    def __init__(self, center, radius: float, restitution: float, friction: float, motion=None):
         self.center = tuple(float(c) for c in center)
         self.radius = float(radius)
         self.restitution = float(restitution)
         self.friction = float(friction)
+        self.motion = motion
 
     def settings(self) -> dict:
-        return {
-            "type": "sphere",
-            "center": self.center,
-            "radius": self.radius,
-            "restitution": self.restitution,
-            "friction": self.friction,
-        }
+        return self._settings(type="sphere", center=self.center, radius=self.radius)
 
     @ti.func
-    def sdf(self, x):
+    def _sdf(self, x):
         return (x - ti.Vector(self.center, dt=float)).norm() - self.radius
 
     @ti.func
-    def normal(self, x):
+    def _normal(self, x):
         d = x - ti.Vector(self.center, dt=float)
         n = ti.Vector([0.0, 1.0, 0.0], dt=float)  # the centre itself: push up (any direction is valid)
         length = d.norm()
@@ -181,7 +261,7 @@ class ColliderSphere:
         return n
 
     @ti.func
-    def sweep(self, x0, x1, r):
+    def _sweep(self, x0, x1, r):
         # First root of |x0 + tau (x1 - x0) - c| = R + r on [0, 1] (segment against the grown ball).
         c = ti.Vector(self.center, dt=float)
         rr = self.radius + r
@@ -193,9 +273,10 @@ class ColliderSphere:
         tau = NO_HIT
         n = ti.Vector.zero(float, 3)
         disc = b * b - a * q
-        if q >= -2.0 * rr * ON_SURFACE and a > 1e-30 and b < 0.0 and disc >= 0.0:
+        approach = b < -GRAZING * ti.sqrt(a * m.dot(m))
+        if q >= -2.0 * rr * ON_SURFACE and a > 1e-30 and approach and disc >= 0.0:
             t_hit = (-b - ti.sqrt(disc)) / a
             if t_hit <= 1.0:
                 tau = ti.max(t_hit, 0.0)
-                n = self.normal(x0 + tau * d)
+                n = self._normal(x0 + tau * d)
         return tau, n

@@ -1,5 +1,7 @@
-"""Collision response for particles against static colliders (Witkin & Baraff course notes,
-"Particle dynamics", collisions: v_n -> -e v_n, tangential velocity reduced by Coulomb friction).
+"""Collision response for particles against colliders (Witkin & Baraff course notes, "Particle
+dynamics", collisions: v_n -> -e v_n, tangential velocity reduced by Coulomb friction), applied to the
+velocity relative to the surface, v - v_s, for a moving collider (restitution and friction act on the
+relative velocity; v_s = 0 for a static one, whose code has no such term).
 
 `collide` runs after the integrator has produced the end-of-step state; PROJECTION moves the end point to
 the surface, BACKWARD re-walks the step's segment (backward search to the time of impact).
@@ -27,98 +29,149 @@ def respond(v, n, restitution, friction):
     return out
 
 
+def any_moving(colliders) -> bool:
+    """Whether any collider moves (a compile-time flag: static scenes compile no surface velocities)."""
+    return any(c.moving for c in colliders)
+
+
 @ti.func
-def _project(colliders: ti.template(), x, v, r, rest_speed, x_prev):
+def _project(colliders: ti.template(), x, v, r, rest_speed, x_prev, t, h):
     # One branch for the common case (touching nothing), not one per collider: a branch-free minimum
     # (a short-circuit `and` would compile to one branch per collider again).
     nearest = ti.cast(1e30, float)
     for c in ti.static(colliders):
-        nearest = ti.min(nearest, c.sdf(x))
+        nearest = ti.min(nearest, c.sdf(x, t))
     if nearest < r:
-        x, v = _project_each(colliders, x, v, r, rest_speed, x_prev)
+        x, v = _project_each(colliders, x, v, r, rest_speed, x_prev, t, h)
     return x, v
 
 
 @ti.func
-def _project_each(colliders: ti.template(), x, v, r, rest_speed, x_prev):
+def _slide_and_respond(c: ti.template(), x, v, d, n, dx, rest_speed):
+    """Friction on the step's displacement dx and the velocity response, both relative to the surface."""
+    # Coulomb friction on the step's tangential displacement too (Macklin et al., "Unified Particle
+    # Physics for Real-Time Applications", 2014, eq. 24): it shrinks by mu times the depth pushed out, so
+    # a vertex held by static friction does not creep h^2 g sin(theta) per step down a slope.
+    dxt = dx - dx.dot(n) * n
+    slip = dxt.norm()
+    x -= (1.0 - ti.max(1.0 - c.friction * (-d) / ti.max(slip, 1e-12), 0.0)) * dxt
+    e = c.restitution
+    if -v.dot(n) <= rest_speed:
+        e = 0.0  # resting contact: no bounce
+    return x, respond(v, n, e, c.friction)
+
+
+@ti.func
+def _project_each(colliders: ti.template(), x, v, r, rest_speed, x_prev, t, h):
+    # x_prev is where the step started (x itself: no displacement); on a moving surface the displacement
+    # and the velocity are taken relative to the surface.
     for c in ti.static(colliders):
-        d = c.sdf(x) - r
-        if d < 0.0:
-            n = c.normal(x)
-            x -= d * n
-            # Coulomb friction on the step's tangential displacement too (Macklin et al., "Unified
-            # Particle Physics for Real-Time Applications", 2014, eq. 24): it shrinks by mu times the
-            # depth pushed out, so a vertex held by static friction does not creep h^2 g sin(theta)
-            # per step down a slope. x_prev is where the step started (x itself: no displacement).
-            dx = x - x_prev
-            dxt = dx - dx.dot(n) * n
-            slip = dxt.norm()
-            x -= (1.0 - ti.max(1.0 - c.friction * (-d) / ti.max(slip, 1e-12), 0.0)) * dxt
-            e = c.restitution
-            if -v.dot(n) <= rest_speed:
-                e = 0.0  # resting contact: no bounce
-            v = respond(v, n, e, c.friction)
+        if ti.static(c.moving):
+            d, n, vs = c.contact(x, t)  # one pose evaluation for all three
+            d -= r
+            if d < 0.0:
+                x -= d * n
+                x, v = _slide_and_respond(c, x, v - vs, d, n, x - x_prev - h * vs, rest_speed)
+                v += vs
+        else:
+            d = c.sdf(x, t) - r
+            if d < 0.0:
+                n = c.normal(x, t)
+                x -= d * n
+                x, v = _slide_and_respond(c, x, v, d, n, x - x_prev, rest_speed)
     # The friction shift moves a point back along one surface, possibly a hair into another (a corner):
     # one more position-only pass keeps every collider's sdf >= r.
     for c in ti.static(colliders):
-        d = c.sdf(x) - r
-        if d < 0.0:
-            x -= d * c.normal(x)
+        if ti.static(c.moving):
+            d, n, _ = c.contact(x, t)
+            if d < r:
+                x -= (d - r) * n
+        else:
+            d = c.sdf(x, t) - r
+            if d < 0.0:
+                x -= d * c.normal(x, t)
     return x, v
 
 
 @ti.func
-def project_spheres(colliders: ti.template(), x, v, r, rest_speed):
-    """A sphere of radius r [m] at x moved out of every collider it overlaps; approach speeds at or
-    below rest_speed [m/s] do not bounce."""
-    return _project(colliders, x, v, r, rest_speed, x)
+def project_spheres(colliders: ti.template(), x, v, r, rest_speed, t):
+    """A sphere of radius r [m] at x, at time t [s], moved out of every collider it overlaps; approach
+    speeds (relative to the surface) at or below rest_speed [m/s] do not bounce."""
+    return _project(colliders, x, v, r, rest_speed, x, t, 0.0)
 
 
 @ti.func
-def collide(colliders: ti.template(), mode: ti.template(), x0, v0, x1, v1, dt, r, rest_speed):
-    """End-of-step position and velocity after collisions; x0, v0 start the step, x1, v1 end it; r [m]
-    the particle's radius (0 for points); impacts at or below rest_speed [m/s] (< 0: none) do not
-    bounce."""
+def _first_hit(colliders: ti.template(), xs, xe, t, h, r):
+    """The earliest impact on the segment xs -> xe over [t, t + h]: (tau, n, e, mu, v_surface)."""
+    tau = ti.cast(NO_HIT, float)
+    n = ti.Vector.zero(float, 3)
+    vsurf = ti.Vector.zero(float, 3)
+    e = ti.cast(0.0, float)
+    mu = ti.cast(0.0, float)
+    for c in ti.static(colliders):
+        tc, nc, vc = c.sweep(xs, xe, t, h, r)
+        if tc < tau:
+            tau, n, e, mu = tc, nc, c.restitution, c.friction
+            if ti.static(c.moving):
+                vsurf = vc
+            elif ti.static(any_moving(colliders)):
+                vsurf = ti.Vector.zero(float, 3)
+    return tau, n, e, mu, vsurf
+
+
+@ti.func
+def _impact(colliders: ti.template(), xs, vs, xe, ve, frac, t, dt, r, rest_speed):
+    """The first impact on what is left of the step (the path xs -> xe, the last frac of [t, t + dt]),
+    resolved: the state at impact and the rest of the step with the new velocity (unchanged if none)."""
+    tau, n, e, mu, vsurf = _first_hit(colliders, xs, xe, t + (1.0 - frac) * dt, frac * dt, r)
+    if tau <= 1.0:
+        xh = xs + tau * (xe - xs)
+        # Velocity at impact interpolated along the step; the rest of the step keeps the step's velocity
+        # change (gravity keeps acting after the bounce).
+        vi = vs + tau * (ve - vs)
+        if ti.static(any_moving(colliders)):
+            vi -= vsurf
+        if -vi.dot(n) <= rest_speed:
+            e = 0.0
+        vh = respond(vi, n, e, mu)
+        if ti.static(any_moving(colliders)):
+            vh += vsurf
+        rest = 1.0 - tau
+        ve = vh + rest * (ve - vs)
+        frac *= rest
+        xs, vs = xh, vh
+        xe = xh + frac * dt * ve
+    return xs, vs, xe, ve, frac
+
+
+@ti.func
+def collide(colliders: ti.template(), mode: ti.template(), x0, v0, x1, v1, t, dt, r, rest_speed):
+    """End-of-step position and velocity after collisions; x0, v0 start the step at time t [s], x1, v1
+    end it at t + dt; r [m] the particle's radius (0 for points); impacts at or below rest_speed [m/s]
+    (< 0: none; relative to the surface) do not bounce."""
     x = x1
     v = v1
     if ti.static(mode == CollisionMode.BACKWARD):
         xs, vs, xe, ve = x0, v0, x1, v1
-        frac = 1.0  # fraction of dt still to run from xs
-        for _ in ti.static(range(MAX_HITS)):
-            tau = NO_HIT
-            n = ti.Vector.zero(float, 3)
-            e = 0.0
-            mu = 0.0
-            for c in ti.static(colliders):
-                tc, nc = c.sweep(xs, xe, r)
-                if tc < tau:
-                    tau, n, e, mu = tc, nc, c.restitution, c.friction
-            if tau <= 1.0:
-                xh = xs + tau * (xe - xs)
-                # Velocity at impact interpolated along the step; the rest of the step keeps the
-                # step's velocity change (gravity keeps acting after the bounce).
-                vi = vs + tau * (ve - vs)
-                if -vi.dot(n) <= rest_speed:
-                    e = 0.0
-                vh = respond(vi, n, e, mu)
-                rest = 1.0 - tau
-                ve = vh + rest * (ve - vs)
-                frac *= rest
-                xs, vs = xh, vh
-                xe = xh + frac * dt * ve
+        frac = ti.cast(1.0, float)  # fraction of dt still to run from xs
+        if ti.static(any_moving(colliders)):
+            # A run-time loop: a moving collider's tests evaluate poses, and unrolling them MAX_HITS
+            # times made compilation take minutes.
+            for _ in range(MAX_HITS):
+                xs, vs, xe, ve, frac = _impact(colliders, xs, vs, xe, ve, frac, t, dt, r, rest_speed)
+        else:
+            for _ in ti.static(range(MAX_HITS)):
+                xs, vs, xe, ve, frac = _impact(colliders, xs, vs, xe, ve, frac, t, dt, r, rest_speed)
         # Impacts left after MAX_HITS (the step's velocity change keeps driving the path into a surface):
         # stop at the first contact on what is left of the path instead of letting the safety projection
         # push the particle out of whichever side is nearest, possibly the far side of a thin solid.
-        tau = NO_HIT
-        n = ti.Vector.zero(float, 3)
-        mu = 0.0
-        for c in ti.static(colliders):
-            tc, nc = c.sweep(xs, xe, r)
-            if tc < tau:
-                tau, n, mu = tc, nc, c.friction
+        tau, n, _, mu, vsurf = _first_hit(colliders, xs, xe, t + (1.0 - frac) * dt, frac * dt, r)
         if tau <= 1.0:
             xe = xs + tau * (xe - xs)
-            ve = respond(ve, n, 0.0, mu)
+            if ti.static(any_moving(colliders)):
+                ve = respond(ve - vsurf, n, 0.0, mu) + vsurf
+            else:
+                ve = respond(ve, n, 0.0, mu)
         x, v = xe, ve
     # Safety net in both modes: nothing ends a step inside a collider (round-off, multiple contacts).
-    return _project(colliders, x, v, r, rest_speed, x0)
+    return _project(colliders, x, v, r, rest_speed, x0, t + dt, dt)

@@ -233,7 +233,7 @@ class ContactSpheres:
         self.neighbors.build(state.particle_x, death=death, t=state.time + h)
         src, (a, b) = self.pred, self.sides
         for it in range(self.iterations):
-            self._project(model, state, src, a, it == 0)
+            self._project(model, state, src, a, it == 0, state.time + h)
             src, a, b = a, b, a
         self._velocities(state, src, 1.0 / h, step)
 
@@ -254,6 +254,7 @@ class ContactSpheres:
         src: ti.template(),
         dst: ti.template(),
         first: ti.template(),
+        t_end: float,
     ):
         if ti.static(first and self._per_slot):
             # A pass of its own (top-level loops run one after the other): the sweep below reads the
@@ -279,7 +280,7 @@ class ContactSpheres:
             if acc.n > 0:
                 x += acc.dx * ti.min(1.0, self.relaxation / acc.n)
             if ti.static(model.collider_count > 0):
-                x, _ = project_spheres(model.colliders, x, ti.Vector.zero(float, 3), acc.r, 0.0)
+                x, _ = project_spheres(model.colliders, x, ti.Vector.zero(float, 3), acc.r, 0.0, t_end)
             dst.x[k] = x
 
     @ti.kernel

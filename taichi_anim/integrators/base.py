@@ -114,7 +114,7 @@ class Integrator:
                 v0 = vi[i]
                 x1, v1 = self.update(model, i, x0, v0, t, h)
                 if ti.static(finish):
-                    finish_particle(model, state, self.collision_mode, i, x0, v0, x1, v1, h, step)
+                    finish_particle(model, state, self.collision_mode, i, x0, v0, x1, v1, t, h, step)
                     if ti.static(state.has_lifetimes):
                         model.release_if_dead(state, i, ta + h)  # dies within this step
                 else:
@@ -138,7 +138,7 @@ class Integrator:
         for i in range(model.particle_count):
             if model.alive(state, i, ta):
                 x0, v0 = state.particle_x[i], state.particle_v[i]
-                finish_particle(model, state, self.collision_mode, i, x0, v0, x1f[i], v1f[i], h, step)
+                finish_particle(model, state, self.collision_mode, i, x0, v0, x1f[i], v1f[i], ta, h, step)
                 if ti.static(state.has_lifetimes):
                     model.release_if_dead(state, i, ta + h)
             elif ti.static(state.has_lifetimes):

@@ -1,0 +1,308 @@
+"""Keyframed rigid motion of a collider: x_world = R(t) p + T(t) for a point p of the collider's own frame.
+
+Translation is piecewise linear between keyframes; rotation is spherical linear interpolation (slerp,
+Shoemake, "Animating Rotation with Quaternion Curves", SIGGRAPH 1985, eq. on p. 249: the shortest arc
+at constant angular velocity), written as R(t) = R_k Rot(a_k, s theta_k) with the relative rotation
+R_k^T R_{k+1} = Rot(a_k, theta_k) precomputed per segment and Rot from Rodrigues' formula. Before the
+first keyframe and after the last the pose is held (velocity 0). The pose is evaluated inside the
+kernels from fields written once when the model is built, so a moving collider costs no Python work
+per step. Quaternions are (x, y, z, w), scalar last (as in SciPy and Warp).
+"""
+
+import numpy as np
+import taichi as ti
+from taichi.lang import impl
+
+from .. import validate
+from ..errors import ParameterError
+from ..runtime import data_oriented, np_float
+
+
+def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """(K,4) unit quaternions (x, y, z, w) -> (K,3,3) rotation matrices."""
+    x, y, z, w = q.T
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=1,
+    )
+
+
+def _matrix_to_quat(m: np.ndarray) -> np.ndarray:
+    """(3,3) rotation matrix -> unit quaternion (x, y, z, w), from the largest of the four squared
+    components (Shepperd, J. Guidance and Control 1(3), 1978), so no division by a small number."""
+    tr = np.trace(m)
+    cand = [tr, m[0, 0], m[1, 1], m[2, 2]]
+    k = int(np.argmax(cand))
+    if k == 0:
+        s = 2.0 * np.sqrt(1.0 + tr)
+        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s]
+    else:
+        i = k - 1
+        j, c = (i + 1) % 3, (i + 2) % 3
+        s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[c, c])
+        q = [0.0, 0.0, 0.0, (m[c, j] - m[j, c]) / s]
+        q[i] = 0.25 * s
+        q[j] = (m[j, i] + m[i, j]) / s
+        q[c] = (m[c, i] + m[i, c]) / s
+    q = np.asarray(q)
+    return q / np.linalg.norm(q)
+
+
+def _rotations(rotations, count: int) -> np.ndarray:
+    """Validated (K,3,3) rotation matrices from (K,4) quaternions or (K,3,3) matrices (or None)."""
+    if rotations is None:
+        return np.tile(np.eye(3), (count, 1, 1))
+    r = np.asarray(rotations, dtype=np.float64)
+    if r.shape == (count, 4):
+        validate.finite_array("rotations", r, (4,))
+        norm = np.linalg.norm(r, axis=1)
+        if np.any(norm < 1e-12):
+            raise ParameterError(f"rotations: quaternion {int(np.argmin(norm))} is zero")
+        return _quat_to_matrix(r / norm[:, None])
+    if r.shape == (count, 3, 3):
+        validate.finite_array("rotations", r, (3, 3))
+        err = np.abs(np.einsum("kji,kjl->kil", r, r) - np.eye(3)).max(axis=(1, 2))
+        det = np.linalg.det(r)
+        bad = (err > 1e-6) | (det < 0.0)
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise ParameterError(
+                f"rotations: matrix {k} is not a rotation (|R^T R - I| = {err[k]:.3g}, det = {det[k]:.3g})"
+            )
+        return r
+    raise ParameterError(
+        f"rotations must have shape ({count}, 4) (quaternions x, y, z, w) or ({count}, 3, 3), got {r.shape}"
+    )
+
+
+def _times(times) -> np.ndarray:
+    t = validate.finite_array("times", np.atleast_1d(np.asarray(times, dtype=np.float64)))
+    if t.ndim != 1 or len(t) == 0:
+        raise ParameterError(f"times must be a non-empty 1-D array [s], got shape {t.shape}")
+    step = np.diff(t)
+    if np.any(step <= 0.0):
+        k = int(np.argmax(step <= 0.0))
+        raise ParameterError(
+            f"times must increase strictly, got times[{k}] = {t[k]} >= times[{k + 1}] = {t[k + 1]}"
+        )
+    return t
+
+
+@data_oriented
+class RigidMotion:
+    """A rigid motion from keyframes: times (K,) [s] strictly increasing; translations (K,3) [m];
+    rotations (K,4) unit quaternions (x, y, z, w) or (K,3,3) matrices, default identity. A point p of
+    the collider's own frame is at R(t) p + T(t) in the world."""
+
+    def __init__(self, times, translations, rotations=None):
+        self.times = _times(times)
+        k = len(self.times)
+        self.translations = validate.finite_array("translations", translations, (3,))
+        if len(self.translations) != k:
+            raise ParameterError(
+                f"translations must have one row per keyframe ({k}), got {len(self.translations)}"
+            )
+        self.rotations = _rotations(rotations, k)
+        self.count = k
+        self._halvings = max(1, int(np.ceil(np.log2(k - 1)))) if k > 1 else 0  # binary search steps
+        # Per segment: the relative rotation R_k^T R_{k+1} as an axis (in R_k's frame) and an angle in
+        # [0, pi] (the shortest arc, as slerp takes it).
+        self.axes = np.tile([1.0, 0.0, 0.0], (k, 1))
+        self.angles = np.zeros(k)
+        for s in range(k - 1):
+            q = _matrix_to_quat(self.rotations[s].T @ self.rotations[s + 1])
+            if q[3] < 0.0:
+                q = -q
+            sin_half = np.linalg.norm(q[:3])
+            self.angles[s] = 2.0 * np.arctan2(sin_half, q[3])
+            if sin_half > 1e-15:
+                self.axes[s] = q[:3] / sin_half
+        self._program = None  # the Taichi program the fields were allocated in
+
+    @classmethod
+    def from_transform(cls, transform, times) -> "RigidMotion":
+        """Sample a callable transform(t) -> (R (3,3) rotation, T (3,) [m]) at `times` (K,) [s]; between
+        samples the motion interpolates (a rotation of more than pi between samples is aliased)."""
+        t = _times(times)
+        rs, ts = [], []
+        for ti_ in t:
+            r, tr = transform(float(ti_))
+            rs.append(np.asarray(r, dtype=np.float64))
+            ts.append(np.asarray(tr, dtype=np.float64).reshape(-1))
+        return cls(t, np.array(ts), np.array(rs))
+
+    def settings(self) -> dict:
+        return {"keyframes": self.count, "start": float(self.times[0]), "end": float(self.times[-1])}
+
+    # -- Python-side evaluation (tests, drawing) -----------------------------------------------------------
+
+    def _locate(self, t: float) -> tuple[int, float]:
+        times = self.times
+        if self.count == 1 or t <= times[0]:
+            return 0, 0.0
+        if t >= times[-1]:
+            return self.count - 2, 1.0
+        k = int(np.searchsorted(times, t, side="right")) - 1
+        return k, (t - times[k]) / (times[k + 1] - times[k])
+
+    def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(R (3,3), T (3,) [m]) at time t [s]."""
+        k, s = self._locate(float(t))
+        if self.count == 1:
+            return self.rotations[0].copy(), self.translations[0].copy()
+        a, th = self.axes[k], s * self.angles[k]
+        cross = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+        rot = np.eye(3) + np.sin(th) * cross + (1.0 - np.cos(th)) * cross @ cross
+        return self.rotations[k] @ rot, (1 - s) * self.translations[k] + s * self.translations[k + 1]
+
+    def apply(self, p, t: float) -> np.ndarray:
+        """Points p (N,3) of the collider's frame placed in the world at time t [s]."""
+        r, tr = self.pose(t)
+        return np.asarray(p, dtype=np.float64) @ r.T + tr
+
+    # -- fields and kernel-side evaluation ---------------------------------------------------------------
+
+    def allocate(self) -> None:
+        """Write the keyframes into fields (once per Taichi program, after Taichi is initialised; models
+        sharing this motion share the fields)."""
+        program = impl.get_runtime().prog
+        if self._program is program:
+            return
+        self._program = program
+        k, f = self.count, np_float()
+        span = np.diff(self.times) if k > 1 else np.zeros(0)
+        quats = np.array([_matrix_to_quat(r) for r in self.rotations])
+        # Per segment (the last row unused): rotation axis and half angle in the keyframe's frame, the
+        # world angular velocity R_k a_k theta_k / dt_k and the translation's velocity.
+        omega = np.zeros((k, 3))
+        vel = np.zeros((k, 3))
+        if k > 1:
+            omega[:-1] = (
+                np.einsum("kij,kj->ki", self.rotations[:-1], self.axes[:-1])
+                * (self.angles[:-1] / span)[:, None]
+            )
+            vel[:-1] = np.diff(self.translations, axis=0) / span[:, None]
+        self.key_t = ti.field(float, k)
+        self.key_T = ti.Vector.field(3, float, k)
+        self.key_q = ti.Vector.field(4, float, k)
+        self.seg_axis = ti.Vector.field(3, float, k)
+        self.seg_half_angle = ti.field(float, k)
+        self.seg_omega = ti.Vector.field(3, float, k)
+        self.seg_velocity = ti.Vector.field(3, float, k)
+        for field, value in (
+            (self.key_t, self.times),
+            (self.key_T, self.translations),
+            (self.key_q, quats),
+            (self.seg_axis, self.axes),
+            (self.seg_half_angle, 0.5 * self.angles),
+            (self.seg_omega, omega),
+            (self.seg_velocity, vel),
+        ):
+            field.from_numpy(np.ascontiguousarray(value).astype(f))
+
+    @ti.func
+    def _segment(self, t):
+        """(k, s): segment k and fraction s in [0, 1] along it, t clamped to the keyframes. A binary
+        search unrolled to a fixed number of branch-free halvings (small code: it is inlined at every
+        collider test)."""
+        k = 0
+        s = ti.cast(0.0, float)
+        if ti.static(self.count > 1):
+            last = self.count - 1
+            tc = ti.min(ti.max(t, self.key_t[0]), self.key_t[last])
+            lo, hi = 0, last
+            for _ in ti.static(range(self._halvings)):
+                mid = (lo + hi) // 2
+                go = self.key_t[mid] <= tc  # invariant: key_t[lo] <= tc <= key_t[hi]
+                lo = ti.select(go, mid, lo)
+                hi = ti.select(go, hi, mid)
+            k = ti.min(lo, last - 1)
+            s = ti.min((tc - self.key_t[k]) / (self.key_t[k + 1] - self.key_t[k]), 1.0)
+        return k, s
+
+    @ti.func
+    def pose_at(self, t):
+        """(q, T) at time t: the rotation as a unit quaternion (x, y, z, w) and the translation."""
+        k, s = self._segment(t)
+        return self._pose(k, s)
+
+    @ti.func
+    def _pose(self, k, s):
+        q = self.key_q[k]
+        tr = self.key_T[k]
+        if ti.static(self.count > 1):
+            half = s * self.seg_half_angle[k]
+            q = _quat_mul(q, _vec4(ti.sin(half) * self.seg_axis[k], ti.cos(half)))
+            tr = (1.0 - s) * tr + s * self.key_T[k + 1]
+        return q, tr
+
+    @ti.func
+    def motion_at(self, t):
+        """(q, T, omega, dT/dt) at time t: the pose and its angular and linear velocity (0 outside the
+        keyframes, where the pose is held)."""
+        k, s = self._segment(t)
+        q, tr = self._pose(k, s)
+        omega = ti.Vector.zero(float, 3)
+        vel = ti.Vector.zero(float, 3)
+        if ti.static(self.count > 1):
+            if self.key_t[0] < t and t < self.key_t[self.count - 1]:
+                omega = self.seg_omega[k]
+                vel = self.seg_velocity[k]
+        return q, tr, omega, vel
+
+    @ti.func
+    def to_local(self, x, t):
+        """World point x at time t in the collider's frame."""
+        q, tr = self.pose_at(t)
+        return quat_rotate_inverse(q, x - tr)
+
+    @ti.func
+    def to_world(self, p, t):
+        """Point p of the collider's frame in the world at time t."""
+        q, tr = self.pose_at(t)
+        return quat_rotate(q, p) + tr
+
+    @ti.func
+    def rotate(self, n, t):
+        """A direction of the collider's frame in the world at time t."""
+        q, _ = self.pose_at(t)
+        return quat_rotate(q, n)
+
+    @ti.func
+    def velocity(self, x, t):
+        """Velocity [m/s] at time t of the collider's material point at world position x:
+        omega x (x - T) + dT/dt, with omega = R_k a_k theta_k / (t_{k+1} - t_k) on segment k (slerp turns
+        at a constant rate about an axis that the rotation leaves fixed); 0 outside the keyframes."""
+        _, tr, omega, vel = self.motion_at(t)
+        return omega.cross(x - tr) + vel
+
+
+@ti.func
+def _vec4(v, w):
+    return ti.Vector([v[0], v[1], v[2], w], dt=float)
+
+
+@ti.func
+def _quat_mul(a, b):
+    """Hamilton product of quaternions (x, y, z, w)."""
+    u = ti.Vector([a[0], a[1], a[2]], dt=float)
+    v = ti.Vector([b[0], b[1], b[2]], dt=float)
+    return _vec4(a[3] * v + b[3] * u + u.cross(v), a[3] * b[3] - u.dot(v))
+
+
+@ti.func
+def quat_rotate(q, v):
+    """v rotated by the unit quaternion q (x, y, z, w): v + 2 u x (u x v + w v)."""
+    u = ti.Vector([q[0], q[1], q[2]], dt=float)
+    return v + 2.0 * u.cross(u.cross(v) + q[3] * v)
+
+
+@ti.func
+def quat_rotate_inverse(q, v):
+    """v rotated by the inverse (conjugate) of the unit quaternion q."""
+    u = ti.Vector([q[0], q[1], q[2]], dt=float)
+    return v + 2.0 * u.cross(u.cross(v) - q[3] * v)
