@@ -181,7 +181,7 @@ class SelfContact:
         self._query_edges()
         self._bounds()
         if self.count[0] + self.count[1] > 0:  # one read: most steps of a falling cloth have no pairs
-            self._proximity(model, state)
+            self._proximity(model, state, state.time + h)
         self._finish(model, state, h)
 
     def read_stats(self) -> dict:
@@ -453,7 +453,7 @@ class SelfContact:
         self._pair_correction(model, state, idx, coef, side)
 
     @ti.kernel
-    def _proximity(self, model: ti.template(), state: ti.template()):
+    def _proximity(self, model: ti.template(), state: ti.template(), t_end: float):
         # Gauss-Seidel sweeps in one serial task: each pair's correction is applied at once (it sums to
         # zero momentum), the fixed order makes runs reproducible, and one launch replaces several.
         ti.loop_config(serialize=True)
@@ -474,7 +474,12 @@ class SelfContact:
                     for v in range(self.vertex_count):
                         i = self.vertex[v]
                         x, _v = project_spheres(
-                            model.colliders, state.particle_x[i], state.particle_v[i], model.radius(i), -1.0
+                            model.colliders,
+                            state.particle_x[i],
+                            state.particle_v[i],
+                            model.radius(i),
+                            -1.0,
+                            t_end,
                         )
                         state.particle_x[i] = x
 

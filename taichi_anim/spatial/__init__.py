@@ -24,6 +24,7 @@ from .ccd import (
     ccd_edge_edge,
     ccd_point_triangle,
 )
+from .crossings import Separation, intersecting_triangle_pairs, min_separation
 from .distance import (
     point_segment_closest,
     point_triangle_closest,
@@ -50,6 +51,9 @@ from .tri_grid import TriGrid
 
 __all__ = [
     "BVH",
+    "Separation",
+    "intersecting_triangle_pairs",
+    "min_separation",
     "TriangleMesh",
     "check_mesh",
     "triangle_box_overlap",
