@@ -72,7 +72,9 @@ from .mesh_query import (
     winding_number_np,
 )  # noqa: E402, I001
 from .octree import Octree  # noqa: E402
+from .select import BoxQueryMethod, BruteBoxes, choose_box_query, make_box_query  # noqa: E402
 from .tri_grid import TriGrid  # noqa: E402
 
 __all__ += ["BVH", "Octree", "TriGrid", "morton3", "TriangleMesh", "check_mesh", "triangle_box_overlap"]
 __all__ += ["triangle_solid_angle", "winding_number_np"]
+__all__ += ["BoxQueryMethod", "BruteBoxes", "choose_box_query", "make_box_query"]
