@@ -1,18 +1,26 @@
-"""Loose octree (Ulrich 2000) and its single-level case, the uniform loose grid: box and sphere queries
-visit exactly the boxes a brute-force scan finds, with degenerate, duplicated, huge and tiny boxes
-(many levels), negative coordinates, queries outside the root cube or covering it (the level-scan
-path), n = 1 and 2, after moving boxes, in f32 with parallel loops; the slot order is reproducible."""
+"""Loose octree (Ulrich 2000), its single-level case (the uniform loose grid) and the brute-force box
+set: box and sphere queries visit exactly the boxes a NumPy scan finds, with degenerate, duplicated,
+huge and tiny boxes (many levels), negative coordinates, queries outside the root cube or covering it
+(the level-scan path), n = 1 and 2, after moving boxes, in f32 with parallel loops; the slot order is
+reproducible. The automatic choice follows select.py's cost model."""
 
 import numpy as np
 import pytest
 
 import taichi_anim as ta
 from taichi_anim import ParameterError
-from taichi_anim.spatial import Octree, TriGrid
+from taichi_anim.spatial import BVH, Octree, TriGrid
+from taichi_anim.spatial.select import (
+    CROSSOVER_N,
+    BoxQueryMethod,
+    BruteBoxes,
+    choose_box_query,
+    make_box_query,
+)
 
 from .test_bvh import Collector, brute_boxes, brute_spheres, fill, queries, random_boxes
 
-CLASSES = [Octree, TriGrid]
+CLASSES = [Octree, TriGrid, BruteBoxes]
 
 
 def check(tree, col, lo, hi, rng, nq):
@@ -56,7 +64,7 @@ def test_sizes_over_many_levels_and_moves(cls):
     fill(tree, lo, hi)
     tree.build(n)
     if cls is Octree:
-        assert (tree.level_count.to_numpy() > 0).sum() >= 10
+        assert (tree.level_count.to_numpy() > 0).sum() >= 8
     check(tree, col, lo, hi, rng, nq)
     lo, hi = lo + rng.normal(scale=0.5, size=(n, 3)), hi + 0.6
     fill(tree, lo, hi)
@@ -74,10 +82,11 @@ def test_f32_parallel_and_reproducible(cls):
     lo, hi = (a.astype(np.float32) for a in random_boxes(n, rng, scale=100.0, shared=0.0, huge=False))
     fill(tree, lo, hi)
     tree.build(n)
-    slots = tree.slot_prim.to_numpy()
-    assert sorted(slots.tolist()) == list(range(n))
-    tree.build(n)
-    np.testing.assert_array_equal(tree.slot_prim.to_numpy(), slots)
+    if cls is not BruteBoxes:
+        slots = tree.slot_prim.to_numpy()
+        assert sorted(slots.tolist()) == list(range(n))
+        tree.build(n)
+        np.testing.assert_array_equal(tree.slot_prim.to_numpy(), slots)
     qlo, qhi = (a.astype(np.float32) * 100.0 for a in queries(lo / 100.0, hi / 100.0, nq, rng))
     col.boxes(qlo, qhi, nq)
     assert col.lists(nq) == brute_boxes(lo, hi, qlo, qhi)
@@ -93,3 +102,20 @@ def test_empty_and_parameter_errors():
         Octree(0)
     with pytest.raises(ParameterError, match="n must"):
         tree.build(4)
+
+
+def test_automatic_choice_follows_the_cost_model():
+    assert choose_box_query(1) is BoxQueryMethod.BRUTE
+    assert choose_box_query(CROSSOVER_N - 20) is BoxQueryMethod.BRUTE
+    assert choose_box_query(CROSSOVER_N + 20) is BoxQueryMethod.BVH
+    assert choose_box_query(10**6) is BoxQueryMethod.BVH
+    assert choose_box_query(10**5, queries=3) is BoxQueryMethod.BRUTE  # a few queries: no build pays
+    assert isinstance(make_box_query(100), BruteBoxes)
+    assert isinstance(make_box_query(5000), BVH)
+    kinds = {"brute": BruteBoxes, "grid": TriGrid, "octree": Octree, "bvh": BVH}
+    for name, cls in kinds.items():
+        assert type(make_box_query(10, method=name)) is cls
+    with pytest.raises(ParameterError, match="method"):
+        make_box_query(10, method="kd")
+    with pytest.raises(ParameterError, match="count"):
+        choose_box_query(-1)

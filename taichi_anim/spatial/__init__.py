@@ -47,10 +47,15 @@ from .mesh_query import (
     winding_number_np,
 )
 from .octree import Octree
+from .select import BoxQueryMethod, BruteBoxes, choose_box_query, make_box_query
 from .tri_grid import TriGrid
 
 __all__ = [
     "BVH",
+    "BoxQueryMethod",
+    "BruteBoxes",
+    "choose_box_query",
+    "make_box_query",
     "Separation",
     "intersecting_triangle_pairs",
     "min_separation",
