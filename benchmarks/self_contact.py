@@ -89,9 +89,9 @@ def measure_steps(model, state, integrator, dt: float, steps: int) -> dict:
     }
 
 
-def share(n: int, quick: bool) -> dict:
-    common.log(f"share: n = {n}")
-    model = build_model(layers=2, resolution=n)
+def share(n: int, quick: bool, broad_phase: str = "auto", explicit: bool = True) -> dict:
+    common.log(f"share: n = {n}, broad phase {broad_phase}")
+    model = build_model(layers=2, resolution=n, broad_phase=broad_phase)
     state = model.state()
     run_up = implicit()
     t0 = time.perf_counter()
@@ -185,10 +185,13 @@ def report(shares: list, newton: dict | None, args, load0: str, other) -> str:
     rows = []
     for s in shares:
         for name in ("implicit Euler", "symplectic Euler"):
+            if name not in s:
+                continue
             r = s[name]
             rows.append(
                 [
                     f"2 x {s['n']}^2",
+                    s["broad_phase"],
                     name,
                     common.fmt_dt(r["dt"]),
                     f"{r['ms_step']:.2f}",
@@ -199,7 +202,17 @@ def report(shares: list, newton: dict | None, args, load0: str, other) -> str:
             )
     lines.append(
         common.md_table(
-            ["sheets", "method", "dt", "ms/step", "self-contact ms/step", "share", "proximity pairs"], rows
+            [
+                "sheets",
+                "broad phase",
+                "method",
+                "dt",
+                "ms/step",
+                "self-contact ms/step",
+                "share",
+                "proximity pairs",
+            ],
+            rows,
         )
     )
     if newton:
@@ -262,6 +275,8 @@ def main(argv=None) -> None:
     shares = []
     if args.part in ("all", "share"):
         shares = [share(n, args.quick) for n in ((16, 24) if args.quick else (64, 128))]
+        # The box structures of spatial/select.py on the Newton scene's sheets (implicit steps only).
+        shares += [share(17 if args.quick else 33, args.quick, bp, False) for bp in ("bvh", "grid", "octree")]
     newton = None
     if args.part in ("all", "newton"):
         newton = newton_part(3 if args.quick else FRAMES)

@@ -464,6 +464,7 @@ class Builder:
         bound_fraction: float = 0.4,
         pairs_per_vertex: int = 64,
         guard: bool = True,
+        broad_phase: str = "auto",
     ) -> None:
         """Contact between every cloth's triangles, within one cloth and between cloths
         (collision/self_contact.py): non-adjacent vertex-triangle and edge-edge pairs are kept
@@ -471,7 +472,9 @@ class Builder:
         `iterations` Gauss-Seidel sweeps of proximity constraints (each pair's correction times
         `relaxation`), and per-vertex displacement bounds (a `bound_fraction` < 1/2 of the distance to the
         nearest primitive) let no step end with two triangles crossing. pairs_per_vertex: capacity of the
-        candidate lists; guard=False leaves the bounds out (proximity only: cheaper, may cross)."""
+        candidate lists; guard=False leaves the bounds out (proximity only: cheaper, may cross);
+        broad_phase: the box structure over triangles and edges, "auto" (brute force for small cloths, else
+        a BVH), "brute", "grid", "octree" or "bvh"."""
         from .collision.self_contact import self_contact_options
 
         if thickness is None:
@@ -487,6 +490,7 @@ class Builder:
             bound_fraction=bound_fraction,
             pairs_per_vertex=pairs_per_vertex,
             guard=guard,
+            broad_phase=broad_phase,
         )
 
     def add_particle_trails(self, length: int) -> None:

@@ -35,7 +35,7 @@ from ..errors import DivergenceError
 from ..runtime import data_oriented
 from ..spatial.bounds import aabb_point_distance_sq
 from ..spatial.distance import point_triangle_closest, segment_segment_closest
-from ..spatial.lbvh import BVH
+from ..spatial.select import BoxQueryMethod, make_box_query
 from .response import project_spheres
 
 # A pair found closer than this to zero distance has no direction of its own: it takes the direction it
@@ -80,7 +80,7 @@ class SelfContact:
     factor applied to each pair's correction (over-relaxation above 1); bound_fraction gamma in
     (0, 0.5); pairs_per_vertex: capacity of the pair lists (an overflow raises rather than drop one);
     guard=False leaves out the displacement bounds (proximity only: cheaper, but a fast step can end
-    with a crossing; for comparisons)."""
+    with a crossing; for comparisons); broad_phase: "auto", "brute", "grid", "octree" or "bvh"."""
 
     def __init__(
         self,
@@ -93,6 +93,7 @@ class SelfContact:
         bound_fraction: float,
         pairs_per_vertex: int,
         guard: bool = True,
+        broad_phase: str = "auto",
     ):
         self.thickness = thickness
         self.friction = friction
@@ -100,6 +101,7 @@ class SelfContact:
         self.relaxation = relaxation
         self.gamma = bound_fraction
         self.guard = guard
+        self.broad_phase = broad_phase
         tri_model = np.asarray(model.triangles, dtype=np.int64)
         used = np.unique(tri_model)
         local = np.full(model.particle_count, -1, dtype=np.int64)
@@ -143,8 +145,9 @@ class SelfContact:
         self.reach = ti.field(float, nv)  # per vertex [m]: how far its queries look
         self.tri_reach = ti.field(float, nf)
         self.edge_reach = ti.field(float, ne)
-        self.tri_bvh = BVH(nf)
-        self.edge_bvh = BVH(ne)
+        # Box structures over triangles and edges (a BVH, or brute force for small cloths: spatial/select.py).
+        self.tri_boxes = make_box_query(nf, method=broad_phase)
+        self.edge_boxes = make_box_query(ne, method=broad_phase)
         self._built = False
         # Made after ti.init, so `float` resolves to the chosen precision.
         vec3 = ti.types.vector(3, float)
@@ -159,6 +162,7 @@ class SelfContact:
             "relaxation": self.relaxation,
             "bound_fraction": self.gamma,
             "guard": self.guard,
+            "broad_phase": self.tri_boxes.describe(),
         }
 
     # -- the step ---------------------------------------------------------------------------------------
@@ -171,11 +175,11 @@ class SelfContact:
         """Proximity constraints and displacement bounds on the state a method just advanced by h [s]."""
         self._boxes(model, state)
         if self._built:
-            self.tri_bvh.update()
-            self.edge_bvh.update()
+            self.tri_boxes.update()
+            self.edge_boxes.update()
         else:
-            self.tri_bvh.build(self.triangle_count)
-            self.edge_bvh.build(self.edge_count)
+            self.tri_boxes.build(self.triangle_count)
+            self.edge_boxes.build(self.edge_count)
             self._built = True
         self._query()
         self._query_edges()
@@ -240,15 +244,15 @@ class SelfContact:
             a, b, c = self._tri_x0(f)
             r = ti.max(self.reach[t[0]], self.reach[t[1]], self.reach[t[2]])
             self.tri_reach[f] = r
-            self.tri_bvh.prim_lo[f] = ti.min(a, b, c) - r
-            self.tri_bvh.prim_hi[f] = ti.max(a, b, c) + r
+            self.tri_boxes.prim_lo[f] = ti.min(a, b, c) - r
+            self.tri_boxes.prim_hi[f] = ti.max(a, b, c) + r
         for e in range(self.edge_count):
             i, j = self.edge[e][0], self.edge[e][1]
             p, q = self.x0[i], self.x0[j]
             r = ti.max(self.reach[i], self.reach[j])
             self.edge_reach[e] = r
-            self.edge_bvh.prim_lo[e] = ti.min(p, q) - r
-            self.edge_bvh.prim_hi[e] = ti.max(p, q) + r
+            self.edge_boxes.prim_lo[e] = ti.min(p, q) - r
+            self.edge_boxes.prim_hi[e] = ti.max(p, q) + r
 
     @ti.func
     def _tri_x0(self, f):
@@ -283,8 +287,8 @@ class SelfContact:
         reach = ret.r + self.tri_reach[f]
         # The hierarchy's boxes are grown by the reach on every axis; the Euclidean distance to the bare
         # box rejects more (a pair farther apart than both reaches needs nothing: see _query).
-        lo = self.tri_bvh.prim_lo[f] + self.tri_reach[f]
-        hi = self.tri_bvh.prim_hi[f] - self.tri_reach[f]
+        lo = self.tri_boxes.prim_lo[f] + self.tri_reach[f]
+        hi = self.tri_boxes.prim_hi[f] - self.tri_reach[f]
         if t[0] != v and t[1] != v and t[2] != v and aabb_point_distance_sq(lo, hi, ret.x) < reach * reach:
             a, b, c = self._tri_x0(f)
             w = point_triangle_closest(ret.x, a, b, c)
@@ -312,8 +316,8 @@ class SelfContact:
         a, b = self.edge[e][0], self.edge[e][1]
         c, d = self.edge[g][0], self.edge[g][1]
         reach = ret.r + self.edge_reach[g]
-        lo = self.edge_bvh.prim_lo[g] + self.edge_reach[g]
-        hi = self.edge_bvh.prim_hi[g] - self.edge_reach[g]
+        lo = self.edge_boxes.prim_lo[g] + self.edge_reach[g]
+        hi = self.edge_boxes.prim_hi[g] - self.edge_reach[g]
         gap = ti.max(lo - ret.hi, 0.0) + ti.max(ret.lo - hi, 0.0)  # between the bare boxes
         if g > e and a != c and a != d and b != c and b != d and gap.norm_sqr() < reach * reach:
             p0, p1, q0, q1 = self.x0[a], self.x0[b], self.x0[c], self.x0[d]
@@ -338,7 +342,7 @@ class SelfContact:
         for v in range(self.vertex_count):
             r = self.reach[v]
             ret = self._acc(x=self.x0[v], lo=self.x0[v], hi=self.x0[v], r=r, d=r, n=0)
-            self.tri_bvh.for_each_overlap(v, ret.x - r, ret.x + r, self._visit_triangle, ret)
+            self.tri_boxes.for_each_overlap(v, ret.x - r, ret.x + r, self._visit_triangle, ret)
             self.d_vert[v] = ret.d
             self.vt_n[v] = ret.n
 
@@ -349,7 +353,7 @@ class SelfContact:
             p, q = self.x0[self.edge[e][0]], self.x0[self.edge[e][1]]
             r = self.edge_reach[e]
             ret = self._acc(x=p, lo=ti.min(p, q), hi=ti.max(p, q), r=r, d=r, n=0)
-            self.edge_bvh.for_each_overlap(e, ti.min(p, q) - r, ti.max(p, q) + r, self._visit_edge, ret)
+            self.edge_boxes.for_each_overlap(e, ti.min(p, q) - r, ti.max(p, q) + r, self._visit_edge, ret)
             self.ee_n[e] = ret.n
             ti.atomic_min(self.d_edge[e], ret.d)
 
@@ -579,6 +583,7 @@ def self_contact_options(
     bound_fraction: float = 0.4,
     pairs_per_vertex: int = 64,
     guard: bool = True,
+    broad_phase: str = "auto",
 ) -> dict:
     """Validated options of `SelfContact` (the Builder's add_cloth_self_contact)."""
     return dict(
@@ -589,4 +594,5 @@ def self_contact_options(
         bound_fraction=validate.in_range("bound_fraction", bound_fraction, 1e-3, 0.49),
         pairs_per_vertex=validate.count("pairs_per_vertex", pairs_per_vertex, 1),
         guard=bool(guard),
+        broad_phase=validate.choice("broad_phase", broad_phase, [m.value for m in BoxQueryMethod] + ["auto"]),
     )

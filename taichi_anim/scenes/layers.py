@@ -29,11 +29,12 @@ def build_model(
     material=None,
     friction: float = 0.3,
     guard: bool = True,
+    broad_phase: str = "auto",
     seed: int = 0,
 ):
     """The model of the scene: `layers` horizontal `size` [m] sheets of `resolution`^2 vertices, the lowest
     at `height` [m] and each next one `gap` [m] above, over a ball of `ball_radius` [m] resting on the floor
-    at the origin; guard=False: self-contact without its displacement bounds. Returns the model."""
+    at the origin; guard=False: self-contact without its displacement bounds; broad_phase: its box structure. Returns the model."""
     material = ClothMaterial(density=0.2) if material is None else material
     half = 0.5 * size
     b = Builder()
@@ -50,7 +51,7 @@ def build_model(
     b.add_collider_sphere((0.0, ball_radius, 0.0), ball_radius, restitution=0.0, friction=friction)
     b.add_collider_plane(normal=(0.0, 1.0, 0.0), offset=0.0, restitution=0.0, friction=friction)
     if self_contact:
-        b.add_cloth_self_contact(thickness=thickness, friction=friction, guard=guard)
+        b.add_cloth_self_contact(thickness=thickness, friction=friction, guard=guard, broad_phase=broad_phase)
     return b.finalize(seed=seed)
 
 
