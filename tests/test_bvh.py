@@ -147,26 +147,33 @@ def tree_check(tree, n):
     pid = tree.prim_id.to_numpy()[:n]
     assert sorted(pid.tolist()) == list(range(n))
 
-    def own_box(node):
-        if node >= tree.leaf_base:
-            k = pid[node - tree.leaf_base]
-            return plo[k], phi[k]
-        return np.minimum(box[node, 0], box[node, 2]), np.maximum(box[node, 1], box[node, 3])
+    m = n - 1  # internal nodes 0 .. n-2
+    inner_lo = np.minimum(box[:m, 0], box[:m, 2])
+    inner_hi = np.maximum(box[:m, 1], box[:m, 3])
 
-    rlo, rhi = own_box(root)
-    np.testing.assert_array_equal(tree.root_box.to_numpy(), [rlo, rhi])
+    def own(c):
+        """Boxes of nodes c (array): the primitive's for leaves, the union of children for the rest."""
+        leaf = c >= tree.leaf_base
+        k = pid[np.where(leaf, c - tree.leaf_base, 0)]
+        ci = np.where(leaf, 0, c)
+        lo = np.where(leaf[:, None], plo[k], inner_lo[ci] if m else plo[k])
+        hi = np.where(leaf[:, None], phi[k], inner_hi[ci] if m else phi[k])
+        return lo, hi
+
+    rlo, rhi = own(np.array([root]))
+    np.testing.assert_array_equal(tree.root_box.to_numpy(), [rlo[0], rhi[0]])
+    for side in range(2):
+        lo, hi = own(child[:m, side])
+        np.testing.assert_array_equal(box[:m, 2 * side], lo)
+        np.testing.assert_array_equal(box[:m, 2 * side + 1], hi)
     seen, depth, stack = [], 0, [(root, 1)]
     while stack:
         node, d = stack.pop()
         depth = max(depth, d)
         if node >= tree.leaf_base:
             seen.append(node - tree.leaf_base)
-            continue
-        for side, c in enumerate(child[node]):
-            lo, hi = own_box(c)
-            np.testing.assert_array_equal(box[node, 2 * side], lo)
-            np.testing.assert_array_equal(box[node, 2 * side + 1], hi)
-            stack.append((c, d + 1))
+        else:
+            stack += [(int(child[node, 0]), d + 1), (int(child[node, 1]), d + 1)]
     assert sorted(seen) == list(range(n))
     return depth
 

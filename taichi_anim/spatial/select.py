@@ -23,13 +23,14 @@ from .tri_grid import TriGrid
 # Cost model fitted to benchmarks/bvh.py on this project's 2-core CPU (results/bvh.md, "cost model"):
 # brute force costs queries x boxes x BRUTE_TEST_S; the BVH a build, BVH_BUILD_FIXED_S +
 # boxes x BVH_BUILD_PER_BOX_S, plus queries x BVH_QUERY_S (for queries that meet ~10 boxes).
-BRUTE_TEST_S = 7.2e-10
-BVH_BUILD_FIXED_S = 4.9e-5
-BVH_BUILD_PER_BOX_S = 9.0e-8
-BVH_QUERY_S = 3.0e-7
-# Where the two meet with one query per box (self-contact): brute force below it. Measured crossovers of
-# build + N queries: ~420-590 boxes on a cloth-like sheet, below 10^3 on a triangle soup.
-CROSSOVER_N = 640
+BRUTE_TEST_S = 9.6e-10
+BVH_BUILD_FIXED_S = 4.8e-5
+BVH_BUILD_PER_BOX_S = 6.2e-8
+BVH_QUERY_S = 2.7e-7
+# Where the two meet with one query per box (self-contact): brute force below it. Measured crossovers,
+# brute force against BVH build (or refit) + N queries: 586 (425) boxes on a cloth-like sheet, 397 (254)
+# on a triangle soup; an earlier run under a different load fitted 640.
+CROSSOVER_N = 460
 
 
 class BoxQueryMethod(Enum):
