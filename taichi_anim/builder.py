@@ -462,7 +462,7 @@ class Builder:
         iterations: int = 4,
         relaxation: float = 1.0,
         bound_fraction: float = 0.4,
-        pairs_per_vertex: int = 64,
+        pairs_per_vertex: int = 128,
         guard: bool = True,
         broad_phase: str = "auto",
     ) -> None:

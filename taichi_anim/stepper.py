@@ -63,8 +63,7 @@ class Stepper:
             t0 = state.time
             for k in range(n):
                 state.time = t0 + k * h
-                self._advance(state, h)
-                contacts.solve(model, state, h, state.step_count + 1)
+                self._advance(state, h, contacts)
             state.time = t0
         if state.trail_length:
             state.record_trails(state.trail_head)
@@ -76,12 +75,14 @@ class Stepper:
             if self.self_contact is not None:
                 self.self_contact.read_stats()
 
-    def _advance(self, state, h: float) -> None:
-        """The method's step by h, then cloth self-contact on what it proposed."""
+    def _advance(self, state, h: float, contacts=None) -> None:
+        """The method's step by h, sphere contacts, then cloth self-contact on the result (last: nothing
+        may move a cloth vertex after its guard)."""
         sc = self.self_contact
-        if sc is None:
-            self.integrator.advance_step(self.model, state, h)
-            return
-        sc.begin(self.model, state)
+        if sc is not None:
+            sc.begin(self.model, state)
         self.integrator.advance_step(self.model, state, h)
-        sc.solve(self.model, state, h)
+        if contacts is not None:
+            contacts.solve(self.model, state, h, state.step_count + 1)
+        if sc is not None:
+            sc.solve(self.model, state, h)

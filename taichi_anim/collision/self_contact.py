@@ -13,18 +13,24 @@ positions x0 (intersection-free) and its end positions x1:
    Real-Time Applications", 2014, eq. 24). Corrections are mass-weighted and every pair's sum to zero
    momentum, so the exchange is equal and opposite; they are applied in Gauss-Seidel sweeps in a fixed
    order (reproducible).
-2. Displacement bounds (Chen et al., "Vertex Block Descent", SIGGRAPH 2024, sec. 3.7 / "Offset Geometric
-   Contact", 2025): vertex v may move at most b_v = gamma min(d_v, d_T for its triangles T, d_e for its
-   edges e) from x0, where d_v is v's distance to the nearest non-incident triangle, d_T the distance of
-   the nearest vertex to T, d_e of the nearest non-adjacent edge to e (all at x0). With gamma < 1/2 every
-   point of a pair at distance d moves less than d/2, so no pair can meet within the step: this is the
-   continuous guarantee, without a root-finding CCD pass, and it holds for any step a method proposes.
-   A vertex held by its bound keeps the velocity of the displacement it was allowed.
+2. Guard (Chen et al., "Vertex Block Descent", SIGGRAPH 2024, sec. 3.7, and "Offset Geometric Contact",
+   2025, for the bounds): a pair at distance d at x0 cannot meet within the step while each material
+   point of one side moves, relative to each of the other, by less than d; relative motions of material
+   points are convex combinations of the vertices', so max |dx_i - dx_j| over the pair's vertex pairs
+   < d suffices (linear motion in the step). Pairs failing it (by SAFE d) have their vertices held: moved
+   back towards x0 to within b_v = gamma min(d_v, d_T for v's triangles T, d_e for v's edges e), where
+   d_v is v's distance to the nearest non-incident triangle, d_T the nearest vertex's to T, d_e the
+   nearest non-adjacent edge's to e (all at x0). A pair whose vertices are all held moves by at most
+   2 gamma d < d: safe. The check repeats (holding can make another pair unsafe), and after HOLD_PASSES
+   every vertex is held. This is the continuous guarantee, without a root-finding CCD pass, for any step
+   a method proposes, provided x0 has no crossing and kinematic vertices are static (a pinned vertex
+   that the user animates is not guarded). A held vertex keeps the velocity of the motion it was allowed.
 
-Candidate pairs come from two bounding volume hierarchies (spatial/lbvh.py), over the triangles and the
-edges at x0, refit every step, each primitive's box grown by its reach: a vertex that moved m looks as
-far as r = max(m / gamma, 0.75 thickness + m), so every pair that could meet, or come within the
-thickness, is found, and far pairs cost nothing.
+Candidate pairs come from box structures over the triangles and the edges at x0 (a BVH, spatial/), refit
+every step, each primitive's box grown by its reach r = m + KEEP thickness / 2 for a vertex that the
+method moved by m: a pair farther apart than both sides' reaches cannot meet while every vertex moves
+less than its reach (a vertex moved past its reach by the sweeps is held), and every pair that can come
+within KEEP thicknesses is found.
 """
 
 import numpy as np
@@ -123,7 +129,6 @@ class SelfContact:
         self.d_tri = ti.field(float, nf)
         self.d_edge = ti.field(float, ne)
         self.bound = ti.field(float, nv)
-        self.drift = ti.Vector.field(3, float, ())  # mean displacement of the free vertices this step
         # Pairs, in slots per query primitive (vertex v: v K .. v K + vt_n[v]; edge e likewise), written in
         # the traversal's order: the lists, and so the sweeps, are the same whatever the thread timing.
         # Every pair found within the two sides' reaches is kept (a guard pair, with its distance at x0
@@ -162,6 +167,7 @@ class SelfContact:
             "relaxation": self.relaxation,
             "bound_fraction": self.gamma,
             "guard": self.guard,
+            "pairs_per_vertex": self.slots,
             "broad_phase": self.tri_boxes.describe(),
         }
 
@@ -195,9 +201,16 @@ class SelfContact:
         if c[3]:
             raise DivergenceError(
                 f"self-contact found more than pairs_per_vertex={self.slots} pairs for one vertex or "
-                f"edge (raise it for dense piles; or the cloth is exploding)"
+                f"edge (raise it for dense piles and fast cloth, which looks farther; or the cloth is "
+                f"exploding); the step was finished with every vertex held within its bound"
             )
-        self.stats = {"vertex_triangle_pairs": int(c[0]), "edge_edge_pairs": int(c[1]), "clamped": int(c[2])}
+        self.stats = {
+            "vertex_triangle_pairs": int(c[0]),
+            "edge_edge_pairs": int(c[1]),
+            "guard_pairs": int(c[4] + c[5]),
+            "clamped": int(c[2]),
+            "all_held": int(c[6]),
+        }
         return self.stats
 
     @ti.kernel
@@ -207,38 +220,14 @@ class SelfContact:
 
     @ti.kernel
     def _boxes(self, model: ti.template(), state: ti.template()):
-        # The bounds hold in any frame that translates uniformly (distances do not change). Two frames
-        # are tried: the world's and the mean displacement of the free vertices (in which a sheet falling
-        # as a whole is held back by nothing, however fast); the one in which the vertices move less in
-        # total is used, so resting contacts keep the world frame.
-        total = ti.Vector.zero(float, 3)
-        free = 0
-        ti.loop_config(serialize=True)  # fixed summation orders: reproducible runs
         for v in range(self.vertex_count):
-            i = self.vertex[v]
-            x = state.particle_x[i]
+            x = state.particle_x[self.vertex[v]]
             self.x_pred[v] = x
-            if model.inv_mass(i) > 0.0:
-                total += x - self.x0[v]
-                free += 1
-        mean = total / ti.max(free, 1)
-        still = 0.0
-        drifting = 0.0
-        ti.loop_config(serialize=True)
-        for v in range(self.vertex_count):
-            if model.inv_mass(self.vertex[v]) > 0.0:
-                d = self.x_pred[v] - self.x0[v]
-                still += d.norm()
-                drifting += (d - mean).norm()
-        self.drift[None] = ti.Vector.zero(float, 3)
-        if drifting < still:
-            self.drift[None] = mean
-        for v in range(self.vertex_count):
-            move = (self.x_pred[v] - self.x0[v] - self.drift[None]).norm()
-            # Reach: far enough that a vertex with nothing nearer is never held back (gamma r >= move),
-            # and that two primitives within KEEP thicknesses at the end are found (the reaches of a
-            # pair's two sides sum to at least KEEP thicknesses plus both displacements).
-            self.reach[v] = ti.max(move / self.gamma, 0.5 * KEEP * self.thickness + move)
+            # Reach: a pair farther apart than the reaches of its two sides cannot meet while every vertex
+            # moves less than its reach (held vertices move at most gamma times it); the reaches of two
+            # sides also sum to KEEP thicknesses plus both displacements, so every pair that can come
+            # within KEEP thicknesses at the end is found.
+            self.reach[v] = (x - self.x0[v]).norm() + 0.5 * KEEP * self.thickness
         for f in range(self.triangle_count):
             t = self.tri[f]
             a, b, c = self._tri_x0(f)
@@ -338,7 +327,7 @@ class SelfContact:
         for e in range(self.edge_count):
             self.d_edge[e] = self.edge_reach[e]
         # A pair (vertex v, triangle T) is visited when v's box, grown by its reach, overlaps T's box grown
-        # by T's: one that is not lies farther than r_v + r_T, more than both can move (gamma < 1/2).
+        # by T's: one that is not lies farther than r_v + r_T, more than both can move.
         for v in range(self.vertex_count):
             r = self.reach[v]
             ret = self._acc(x=self.x0[v], lo=self.x0[v], hi=self.x0[v], r=r, d=r, n=0)
@@ -365,7 +354,7 @@ class SelfContact:
                 d = ti.min(d, self.d_tri[self.vt_list[k]])
             for k in range(self.ve_start[v], self.ve_start[v + 1]):
                 d = ti.min(d, self.d_edge[self.ve_list[k]])
-            # With nothing found, d = the vertex's reach and gamma * reach >= its displacement.
+            # With nothing found, d is the vertex's reach: held, it moves at most gamma times that.
             self.bound[v] = self.gamma * d
         for k in ti.static((0, 1, 4, 5)):
             self.count[k] = 0
@@ -416,7 +405,7 @@ class SelfContact:
                 rel = gap - gap0
                 rel_t = rel - rel.dot(n) * n
                 slip = rel_t.norm()
-                cut = self.relaxation * ti.min(self.friction * c, slip) / ti.max(slip, TINY) / wsum
+                cut = ti.min(self.relaxation * self.friction * c, slip) / ti.max(slip, TINY) / wsum
                 for k in ti.static(range(4)):
                     w = self._w(model, idx[k]) * coef[k]
                     if w != 0.0:
@@ -451,6 +440,8 @@ class SelfContact:
         coef = ti.Vector([1.0 - st[0], st[0], -(1.0 - st[1]), -st[1]])
         gap0 = coef[0] * self.x0[i0] + coef[1] * self.x0[i1] + coef[2] * self.x0[j0] + coef[3] * self.x0[j1]
         side = (self.x0[i1] - self.x0[i0]).cross(self.x0[j1] - self.x0[j0])
+        if side.norm_sqr() < TINY * TINY:
+            side = gap0  # parallel edges: the direction between them at the step's start
         if side.dot(gap0) < 0.0:
             side = -side
         side = side / ti.max(side.norm(), TINY)
@@ -495,12 +486,20 @@ class SelfContact:
         return (di - dj).norm()
 
     @ti.func
-    def _violations(self, state: ti.template(), mark: ti.template()):
+    def _violations(self, model: ti.template(), state: ti.template(), mark: ti.template()):
         """Count the guard pairs that could have met in the step: a pair at distance d at x0 cannot meet
         while every material point of one side moves less than d relative to every point of the other,
         and those relative motions are convex combinations of the vertices' (max over vertex pairs).
         With mark, their vertices are held."""
         self.count[7] = 0
+        for v in range(self.vertex_count):
+            # The proximity sweeps (and collider projections) may have moved a vertex past its reach, the
+            # premise of "a pair not found cannot meet".
+            if (state.particle_x[self.vertex[v]] - self.x0[v]).norm() >= self.reach[v]:
+                if self._w(model, v) > 0.0:
+                    self.count[7] += 1
+                    if ti.static(mark):
+                        self.hold[v] = 1
         for v in range(self.vertex_count):
             for j in range(self.vt_n[v]):
                 k = v * self.slots + j
@@ -510,7 +509,8 @@ class SelfContact:
                     self._moves_apart(state, v, t[1]),
                     self._moves_apart(state, v, t[2]),
                 )
-                if rel >= SAFE * self.vt_d[k]:
+                free = self._w(model, v) + self._w(model, t[0]) + self._w(model, t[1]) + self._w(model, t[2])
+                if rel >= SAFE * self.vt_d[k] and free > 0.0:
                     self.count[7] += 1
                     if ti.static(mark):
                         self.hold[v] = 1
@@ -525,7 +525,8 @@ class SelfContact:
                     ti.max(self._moves_apart(state, a, c), self._moves_apart(state, a, d)),
                     ti.max(self._moves_apart(state, b, c), self._moves_apart(state, b, d)),
                 )
-                if rel >= SAFE * self.ee_d[k]:
+                free = self._w(model, a) + self._w(model, b) + self._w(model, c) + self._w(model, d)
+                if rel >= SAFE * self.ee_d[k] and free > 0.0:
                     self.count[7] += 1
                     if ti.static(mark):
                         self.hold[a] = 1
@@ -535,20 +536,20 @@ class SelfContact:
 
     @ti.func
     def _clamp(self, model: ti.template(), state: ti.template(), last: ti.template()):
-        """Move held vertices back within their bound of the step's start, in the step's frame (the last
-        time: every vertex, if unsafe pairs are left); kinematic vertices (pinned, attached) go where
-        they are driven."""
+        """Move held vertices back within their bound of the step's start (the last time: every vertex,
+        if unsafe pairs are left or a pair list overflowed); kinematic vertices (pinned, attached) go
+        where they are driven: a pinned vertex does not move, one that a user animates is not guarded."""
         for v in range(self.vertex_count):
             i = self.vertex[v]
             held = self.hold[v] == 1
             if ti.static(last):
-                held = self.count[7] > 0
+                held = self.count[7] > 0 or self.count[3] > 0
             if held and model.inv_mass(i) > 0.0:
-                step = state.particle_x[i] - self.x0[v] - self.drift[None]
+                step = state.particle_x[i] - self.x0[v]
                 length = step.norm()
                 b = self.bound[v]
                 if length > b:
-                    state.particle_x[i] = self.x0[v] + self.drift[None] + step * (b / length)
+                    state.particle_x[i] = self.x0[v] + step * (b / length)
                     ti.atomic_add(self.count[2], 1)
 
     @ti.kernel
@@ -559,9 +560,9 @@ class SelfContact:
         # pair fast), and after HOLD_PASSES hold every vertex: all held, every pair is safe (gamma < 1/2).
         if ti.static(self.guard):
             for _pass in ti.static(range(HOLD_PASSES)):
-                self._violations(state, True)
+                self._violations(model, state, True)
                 self._clamp(model, state, False)
-            self._violations(state, False)
+            self._violations(model, state, False)
             if self.count[7] > 0:
                 self.count[6] += 1
             self._clamp(model, state, True)
@@ -581,7 +582,7 @@ def self_contact_options(
     iterations: int = 4,
     relaxation: float = 1.0,
     bound_fraction: float = 0.4,
-    pairs_per_vertex: int = 64,
+    pairs_per_vertex: int = 128,
     guard: bool = True,
     broad_phase: str = "auto",
 ) -> dict:
@@ -591,7 +592,7 @@ def self_contact_options(
         friction=validate.non_negative("friction", friction),
         iterations=validate.count("iterations", iterations, 1),
         relaxation=validate.in_range("relaxation", relaxation, 1e-3, 2.0),
-        bound_fraction=validate.in_range("bound_fraction", bound_fraction, 1e-3, 0.49),
+        bound_fraction=validate.in_range("bound_fraction", bound_fraction, 1e-3, 0.5 * SAFE),
         pairs_per_vertex=validate.count("pairs_per_vertex", pairs_per_vertex, 1),
         guard=bool(guard),
         broad_phase=validate.choice("broad_phase", broad_phase, [m.value for m in BoxQueryMethod] + ["auto"]),

@@ -34,7 +34,8 @@ def build_model(
 ):
     """The model of the scene: `layers` horizontal `size` [m] sheets of `resolution`^2 vertices, the lowest
     at `height` [m] and each next one `gap` [m] above, over a ball of `ball_radius` [m] resting on the floor
-    at the origin; guard=False: self-contact without its displacement bounds; broad_phase: its box structure. Returns the model."""
+    at the origin; guard=False: self-contact without its displacement bounds; broad_phase: its box
+    structure. Returns the model."""
     material = ClothMaterial(density=0.2) if material is None else material
     half = 0.5 * size
     b = Builder()
