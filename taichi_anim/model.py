@@ -8,6 +8,7 @@ from types import MappingProxyType
 import numpy as np
 import taichi as ti
 
+from .collision.motion import attachment_codes
 from .runtime import data_oriented, np_float, serial_loops
 from .state import ALIVE_FOREVER, State
 from .terms import Springs
@@ -34,6 +35,7 @@ class Model:
         springs=None,
         element_terms=None,
         triangles=None,
+        attachments=(),
     ):
         n = len(x)
         self.particle_count = n
@@ -44,6 +46,10 @@ class Model:
         self.collider_count = len(self.colliders)
         for c in self.colliders:
             c.allocate()  # moving and mesh colliders write their keyframes / geometry into fields
+        # Attachments: pinned particles put on animated targets at the end of each step.
+        self.attachments = tuple(attachments)
+        self.attachment_count = len(self.attachments)
+        self.particle_attachment = attachment_codes(n, self.attachments) if self.attachments else None
         self.trail_length = trail_length
         self.seed = seed
         self._x0 = np.asarray(x, dtype=np.float64)
