@@ -420,6 +420,37 @@ class Builder:
             )
         )
 
+    def add_collider_mesh(
+        self,
+        mesh,
+        *,
+        thickness: float = 0.0,
+        restitution: float = 0.5,
+        friction: float = 0.0,
+        motion: RigidMotion | None = None,
+        vertex_frames=None,
+    ) -> None:
+        """A triangle-mesh collider (collision/mesh_collider.py): mesh is an Open3D TriangleMesh (legacy or
+        tensor), a file Open3D reads (PLY keeps vertex order, which vertex_frames rely on) or (vertices
+        (V, 3) [m], faces (F, 3)). Particles stay thickness [m] + their radius from its triangles, outside
+        it if it is closed (every edge shared by two consistently oriented faces), on either side if it is
+        open; restitution in [0, 1] and Coulomb friction as for planes. motion: a RigidMotion (the mesh
+        given in its frame), or vertex_frames = (times (K,) [s], positions (K, V, 3) [m]) for a deforming
+        mesh (linear between frames, held outside them), or neither (static). Bad meshes (empty, non-finite,
+        indices out of range, every face of zero area, an unreadable file) raise ParameterError."""
+        from .collision.mesh_collider import make_collider_mesh
+
+        self._colliders.append(
+            make_collider_mesh(
+                mesh,
+                thickness=thickness,
+                restitution=restitution,
+                friction=friction,
+                motion=motion,
+                vertex_frames=vertex_frames,
+            )
+        )
+
     def add_attachment(
         self, particles, times=None, positions=None, *, motion: RigidMotion | None = None
     ) -> int:

@@ -54,6 +54,7 @@ class Stepper:
             model.emit(state, dt)
         contacts = self.contacts
         if contacts is None:
+            model.prepare_colliders(state.time, dt)
             method.advance_step(model, state, dt)
         else:
             # Sphere contacts after every (sub)step; continuous contacts choose substeps from v_max.
@@ -62,6 +63,7 @@ class Stepper:
             t0 = state.time
             for k in range(n):
                 state.time = t0 + k * h
+                model.prepare_colliders(state.time, h)
                 method.advance_step(model, state, h)
                 contacts.solve(model, state, h, state.step_count + 1)
             state.time = t0

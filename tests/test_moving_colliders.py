@@ -367,3 +367,26 @@ def test_a_particle_is_attached_once():
     b.add_attachment([0, 1], [0.0], np.zeros((1, 2, 3)))
     with pytest.raises(ta.ParameterError, match="particle 1 is already attached"):
         b.add_attachment([1, 2], [0.0], np.zeros((1, 2, 3)))
+
+
+def test_backward_mode_lets_a_particle_slide_along_a_surface():
+    # A point sliding on a floor with friction: the swept test meets the floor at the start of every
+    # step (gravity pushes into it); the rest of the step must slide, not stop. Symplectic Euler with
+    # Coulomb friction: v_n = v0 - mu g n h, x_n = h (v_1 + ... + v_n), as in projection mode.
+    mu, v0, h, steps = 0.3, 2.0, 1e-3, 100
+    ends = {}
+    for mode in MODES:
+        b = ta.Builder()
+        b.add_force_gravity()
+        b.add_particle((0.0, 0.0, 0.0), (v0, 0.0, 0.0))
+        b.add_collider_plane((0.0, 1.0, 0.0), 0.0, restitution=0.0, friction=mu)
+        model = b.finalize()
+        state = model.state()
+        integ = ta.IntegratorSymplecticEuler(collision_mode=mode)
+        for _ in range(steps):
+            integ.step(model, state, h)
+        ends[mode] = state.particle_x.to_numpy()[0]
+    n = np.arange(1, steps + 1)
+    expected = h * np.sum(v0 - mu * 9.81 * n * h)
+    for mode in MODES:
+        np.testing.assert_allclose(ends[mode], [expected, 0.0, 0.0], atol=1e-12)
