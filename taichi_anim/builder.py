@@ -10,6 +10,7 @@ import numpy as np
 from . import geometry, validate
 from .cloth import Cloth, ClothMaterial, FabricMaterial
 from .collision import ColliderPlane, ColliderSolidBox, ColliderSphere, RigidMotion
+from .collision.motion import Attachment
 from .errors import ParameterError
 from .model import Model
 from .particles import Emitter, EmitterShape
@@ -35,6 +36,7 @@ class Builder:
         self._anchor_springs: list[tuple] = []
         self._anchored: set[int] = set()
         self._colliders: list = []
+        self._attachments: list[Attachment] = []
         self._trail_length = 0
         self._springs: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         self._triangles: list[np.ndarray] = []
@@ -419,6 +421,78 @@ class Builder:
             )
         )
 
+    def add_collider_mesh(
+        self,
+        mesh,
+        *,
+        thickness: float = 0.0,
+        restitution: float = 0.5,
+        friction: float = 0.0,
+        motion: RigidMotion | None = None,
+        vertex_frames=None,
+    ) -> None:
+        """A triangle-mesh collider (collision/mesh_collider.py): mesh is an Open3D TriangleMesh (legacy or
+        tensor), a file Open3D reads (PLY keeps vertex order, which vertex_frames rely on) or (vertices
+        (V, 3) [m], faces (F, 3)). Particles stay thickness [m] + their radius from its triangles, outside
+        it if it is closed (every edge shared by two consistently oriented faces), on either side if it is
+        open; restitution in [0, 1] and Coulomb friction as for planes. motion: a RigidMotion (the mesh
+        given in its frame), or vertex_frames = (times (K,) [s], positions (K, V, 3) [m]) for a deforming
+        mesh (linear between frames, held outside them), or neither (static). Bad meshes (empty, non-finite,
+        indices out of range, every face of zero area, an unreadable file) raise ParameterError."""
+        from .collision.mesh_collider import make_collider_mesh
+
+        self._colliders.append(
+            make_collider_mesh(
+                mesh,
+                thickness=thickness,
+                restitution=restitution,
+                friction=friction,
+                motion=motion,
+                vertex_frames=vertex_frames,
+            )
+        )
+
+    def add_attachment(
+        self, particles, times=None, positions=None, *, motion: RigidMotion | None = None
+    ) -> int:
+        """Pinned particles (mass 0) that follow a target a user animates: keyframes `times` (K,) [s]
+        strictly increasing and `positions` (K, P, 3) [m] for the P `particles` (model indices), linearly
+        interpolated and held outside the range; or a RigidMotion `motion` that carries their positions
+        as added rigidly. At the end of each step a particle is put on its target at t + h, with the
+        velocity that reaches it, (target(t + h) - x(t)) / h. Returns the attachment's index."""
+        idx = np.asarray(particles)
+        if idx.ndim != 1 or idx.size == 0 or not np.issubdtype(idx.dtype, np.integer):
+            raise ParameterError(
+                f"particles must be a non-empty 1-D array of particle indices, got {particles!r}"
+            )
+        n = self.particle_count
+        if idx.min() < 0 or idx.max() >= n:
+            raise ParameterError(
+                f"particles must be indices in [0, {n}), got values in [{idx.min()}, {idx.max()}]"
+            )
+        if len(np.unique(idx)) != len(idx):
+            raise ParameterError("particles: an index appears twice")
+        mass = np.concatenate(self._m)[idx]
+        if np.any(mass != 0.0):
+            k = int(idx[np.argmax(mass != 0.0)])
+            raise ParameterError(
+                f"particles: particle {k} is not pinned (mass {mass[np.argmax(mass != 0.0)]:g}); only mass-0 "
+                f"particles can follow a target (pin them with mass=0 or a cloth's pinned=...)"
+            )
+        taken = set().union(*(set(a.particles.tolist()) for a in self._attachments))
+        if taken & set(idx.tolist()):
+            raise ParameterError(f"particles: particle {min(taken & set(idx.tolist()))} is already attached")
+        if motion is not None:
+            if times is not None or positions is not None:
+                raise ParameterError("give either times and positions, or motion, not both")
+            attachment = Attachment(idx, motion=_motion(motion), rest=np.concatenate(self._x)[idx])
+        else:
+            if times is None or positions is None:
+                raise ParameterError("an attachment needs times and positions (keyframes), or a motion")
+            attachment = Attachment(idx, times=times, positions=positions)
+        self._attachments.append(attachment)
+        return len(self._attachments) - 1
+
     def add_sphere_contacts(
         self,
         *,
@@ -559,6 +633,7 @@ class Builder:
             "emitters": [e.settings() for e in emitters],
             "forces": [t.settings() for t in terms],
             "colliders": [c.settings() for c in self._colliders],
+            "attachments": [a.settings() for a in self._attachments],
             "trail_length": self._trail_length,
             "seed": seed,
         }
@@ -578,6 +653,7 @@ class Builder:
             element_terms=[make(len(x_all), x_all) for make in self._element_terms],
             triangles=triangles,
             self_contact=self._self_contact,
+            attachments=self._attachments,
         )
 
     def _contact_domain(self):

@@ -8,6 +8,7 @@ from types import MappingProxyType
 import numpy as np
 import taichi as ti
 
+from .collision.motion import attachment_codes
 from .runtime import data_oriented, np_float, serial_loops
 from .state import ALIVE_FOREVER, State
 from .terms import Springs
@@ -35,6 +36,7 @@ class Model:
         element_terms=None,
         triangles=None,
         self_contact=None,
+        attachments=(),
     ):
         n = len(x)
         self.particle_count = n
@@ -43,8 +45,13 @@ class Model:
         self.emitters = list(emitters)
         self.emitter_count = len(self.emitters)
         self.collider_count = len(self.colliders)
-        for c in self.colliders:
-            c.allocate()  # moving and mesh colliders write their keyframes / geometry into fields
+        for c in self.colliders:  # moving and mesh colliders write their keyframes / geometry into fields
+            c.allocate(reach=float(np.max(radius)))
+        self._prepared_colliders = tuple(c for c in self.colliders if c.needs_prepare)
+        # Attachments: pinned particles put on animated targets at the end of each step.
+        self.attachments = tuple(attachments)
+        self.attachment_count = len(self.attachments)
+        self.particle_attachment = attachment_codes(n, self.attachments) if self.attachments else None
         self.trail_length = trail_length
         self.seed = seed
         self._x0 = np.asarray(x, dtype=np.float64)
@@ -123,6 +130,12 @@ class Model:
         if s.trail_length:
             s.trail.from_numpy(np.repeat(self._x0[:, None, :], s.trail_length, axis=1).astype(f))
         return s
+
+    def prepare_colliders(self, t: float, h: float) -> None:
+        """Per-step work of colliders that need it (a deforming mesh: its vertices at t and t + h [s] and
+        its hierarchy refitted); nothing for the others."""
+        for c in self._prepared_colliders:
+            c.prepare(t, h)
 
     def emit(self, state: State, dt: float) -> None:
         for e in self.emitters:

@@ -7,6 +7,7 @@ import taichi as ti
 
 from . import validate
 from .collision import collide
+from .collision.motion import follow_attachments
 from .collision.self_contact import SelfContact
 from .collision.spheres import ContactSpheres
 from .errors import ParameterError
@@ -17,11 +18,13 @@ def finish_particle(
     model: ti.template(), state: ti.template(), mode: ti.template(), i, x0, v0, x1, v1, t, h, step
 ):
     """The end of a step [t, t + h] for particle i, fused into a method's last kernel: colliders against
-    the step's start point (x0, v0), a count of non-finite results for the divergence watch, and the
-    write."""
+    the step's start point (x0, v0), attached particles onto their targets, a count of non-finite results
+    for the divergence watch, and the write."""
     x, v = x1, v1
     if ti.static(model.collider_count > 0):
         x, v = collide(model.colliders, mode, x0, v0, x1, v1, t, h, model.radius(i), model.rest_speed)
+    if ti.static(model.attachment_count > 0):
+        x, v = follow_attachments(model.attachments, model.particle_attachment, i, x0, x, v, t + h, h)
     total = x.sum() + v.sum()  # NaN or inf in any component makes the sum NaN or inf
     if ti.math.isnan(total) or ti.math.isinf(total):
         ti.atomic_add(state.nonfinite_count[None], 1)
@@ -55,6 +58,7 @@ class Stepper:
             model.emit(state, dt)
         contacts = self.contacts
         if contacts is None:
+            model.prepare_colliders(state.time, dt)
             self._advance(state, dt)
         else:
             # Sphere contacts after every (sub)step; continuous contacts choose substeps from v_max.
@@ -63,6 +67,7 @@ class Stepper:
             t0 = state.time
             for k in range(n):
                 state.time = t0 + k * h
+                model.prepare_colliders(state.time, h)
                 self._advance(state, h, contacts)
             state.time = t0
         if state.trail_length:

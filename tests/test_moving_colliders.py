@@ -239,3 +239,154 @@ def test_backward_mode_catches_a_fast_thin_slab_that_projection_misses(e):
     # Projection sees only the end point, which the slab has already passed: the point stays put.
     np.testing.assert_allclose(ends["projection"][0], 0.0)
     np.testing.assert_allclose(ends["projection"][1], 0.0)
+
+
+# The top corners of `hanging_cloth`: grid vertices (0, 7) and (7, 7) at origin + (i, j) * 0.5 m / 7.
+PINS = np.array([[0.0, 1.0, 0.0], [0.5, 1.0, 0.0]])
+
+
+def hanging_cloth():
+    """A vertical 0.5 m cloth of 8 x 8 vertices hanging from its two top corners (pinned)."""
+    b = ta.Builder()
+    b.add_force_gravity()
+    b.add_force_drag(0.002)
+    cloth = b.add_cloth_grid(
+        origin=(0.0, 0.5, 0.0), size=(0.5, 0.5), resolution=(8, 8), plane="xy", pinned=[56, 63]
+    )
+    return b, cloth
+
+
+def circle_angle(t, omega, ramp):
+    """Angle [rad] on the circle: the angular speed rises as a smoothstep from 0 to omega over `ramp` [s]
+    (no jump in velocity or acceleration for the cloth to swing from), then stays."""
+    u = np.minimum(t / ramp, 1.0)
+    return omega * ramp * (u**3 - 0.5 * u**4) + omega * np.maximum(t - ramp, 0.0)
+
+
+def test_cloth_follows_corners_moving_on_a_circle():
+    # The two top corners go round a horizontal circle of radius rho (keyframes every 0.05 s, linear
+    # between them). Each step ends with the corners exactly on the keyframed path, moving at the velocity
+    # that got them there; the cloth follows: its centre of mass, ~0.25 m below the corners, moves as they
+    # do (0.2 m across) up to the pendulum tilt that accelerations of ~0.25 m/s^2 give it (a / g rad,
+    # ~6 mm) and the swing that tilt sets up (at most as much again), measured against the same cloth
+    # hanging from fixed corners.
+    rho, omega, dt, steps = 0.1, 2.0 * np.pi / 4.0, 1.0 / 60.0, 240
+    times = np.linspace(0.0, steps * dt, 81)
+    phi = circle_angle(times, omega, 1.0)
+    offset = rho * np.stack([np.cos(phi) - 1.0, 0 * times, np.sin(phi)], axis=1)
+    com = {}
+    for moving in (False, True):
+        b, cloth = hanging_cloth()
+        x_pins = PINS
+        if moving:
+            b.add_attachment(cloth.pinned, times, x_pins[None] + offset[:, None])
+        model = b.finalize()
+        state = model.state()
+        integ = ta.IntegratorImplicitEuler(tol=1e-6)
+        m = model.particle_masses()
+        track = []
+        x_prev = state.particle_x.to_numpy()
+        for k in range(1, steps + 1):
+            integ.step(model, state, dt)
+            x, v = state.particle_x.to_numpy(), state.particle_v.to_numpy()
+            if moving:
+                target = x_pins + np.array([np.interp(k * dt, times, offset[:, a]) for a in range(3)])
+                np.testing.assert_allclose(x[cloth.pinned], target, atol=1e-12)
+                np.testing.assert_allclose(v[cloth.pinned], (target - x_prev[cloth.pinned]) / dt, atol=1e-9)
+            x_prev = x
+            track.append((m[:, None] * x).sum(0) / m.sum())
+        com[moving] = np.array(track)
+    t = np.arange(1, steps + 1) * dt
+    moved = np.array([[np.interp(tk, times, offset[:, a]) for a in range(3)] for tk in t])
+    assert np.abs(moved).max() > 1.9 * rho  # the corners went across the circle
+    np.testing.assert_allclose(com[True] - com[False], moved, atol=0.02)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_attachment_carried_by_a_rigid_motion_ends_each_step_on_it(mode):
+    # Pinned points carried by a turn of 90 degrees about y and a lift of 0.3 m over 1 s; a free particle
+    # next to them is not touched; a pinned one not attached keeps its velocity.
+    from scipy.spatial.transform import Rotation
+
+    rot = Rotation.from_euler("y", [[0.0], [90.0]], degrees=True).as_quat()
+    motion = ta.RigidMotion([0.0, 1.0], [[0.0, 0.0, 0.0], [0.0, 0.3, 0.0]], rot)
+    b = ta.Builder()
+    b.add_force_gravity()
+    rest = np.array([[1.0, 0.0, 0.0], [0.0, 0.5, 2.0], [-1.0, 1.0, 0.5]])
+    attached = b.add_particles(rest, mass=0.0)
+    free = b.add_particle((0.0, 2.0, 0.0))
+    still = b.add_particle((5.0, 0.0, 0.0), (1.0, 0.0, 0.0), mass=0.0)
+    b.add_attachment(list(attached), motion=motion)
+    model = b.finalize()
+    state = model.state()
+    integ = ta.IntegratorSymplecticEuler(collision_mode=mode)
+    dt = 0.05
+    x_prev = rest
+    for k in range(1, 25):  # past the last keyframe: held
+        integ.step(model, state, dt)
+        x, v = state.particle_x.to_numpy(), state.particle_v.to_numpy()
+        target = motion.apply(rest, k * dt)
+        np.testing.assert_allclose(x[list(attached)], target, atol=1e-12)
+        np.testing.assert_allclose(v[list(attached)], (target - x_prev) / dt, atol=1e-9)
+        x_prev = target
+    t = 24 * dt
+    # Symplectic Euler: y_n = y0 - g dt^2 n (n + 1) / 2.
+    assert x[free][1] == pytest.approx(2.0 - 9.81 * dt * dt * 24 * 25 / 2, abs=1e-9)
+    np.testing.assert_allclose(x[still], [5.0 + t, 0.0, 0.0], atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    "call, match",
+    [
+        (lambda b: b.add_attachment([2], [0.0], np.zeros((1, 1, 3))), "particle 2 is not pinned"),
+        (lambda b: b.add_attachment([0, 1], [0.0, 1.0], np.zeros((2, 1, 3))), "positions must have shape"),
+        (lambda b: b.add_attachment([0], [1.0, 0.5], np.zeros((2, 1, 3))), "times must increase"),
+        (lambda b: b.add_attachment([0], [0.0, 1.0], np.full((2, 1, 3), np.nan)), "positions"),
+        (lambda b: b.add_attachment([0], [0.0, np.inf], np.zeros((2, 1, 3))), "times"),
+        (lambda b: b.add_attachment([0, 7], [0.0], np.zeros((1, 2, 3))), "particles must be indices"),
+        (lambda b: b.add_attachment([0, 0], [0.0], np.zeros((1, 2, 3))), "twice"),
+        (lambda b: b.add_attachment([0]), "needs times and positions"),
+        (
+            lambda b: b.add_attachment([0], [0.0], np.zeros((1, 1, 3)), motion=linear_motion((1, 0, 0))),
+            "not both",
+        ),
+        (lambda b: b.add_attachment([0], motion="spin"), "motion must be a RigidMotion"),
+    ],
+)
+def test_attachment_rejects_bad_input(call, match):
+    b = ta.Builder()
+    b.add_particles(np.eye(3)[:2], mass=0.0)
+    b.add_particle((0.0, 0.0, 1.0), mass=1.0)
+    with pytest.raises(ta.ParameterError, match=match):
+        call(b)
+
+
+def test_a_particle_is_attached_once():
+    b = ta.Builder()
+    b.add_particles(np.eye(3), mass=0.0)
+    b.add_attachment([0, 1], [0.0], np.zeros((1, 2, 3)))
+    with pytest.raises(ta.ParameterError, match="particle 1 is already attached"):
+        b.add_attachment([1, 2], [0.0], np.zeros((1, 2, 3)))
+
+
+def test_backward_mode_lets_a_particle_slide_along_a_surface():
+    # A point sliding on a floor with friction: the swept test meets the floor at the start of every
+    # step (gravity pushes into it); the rest of the step must slide, not stop. Symplectic Euler with
+    # Coulomb friction: v_n = v0 - mu g n h, x_n = h (v_1 + ... + v_n), as in projection mode.
+    mu, v0, h, steps = 0.3, 2.0, 1e-3, 100
+    ends = {}
+    for mode in MODES:
+        b = ta.Builder()
+        b.add_force_gravity()
+        b.add_particle((0.0, 0.0, 0.0), (v0, 0.0, 0.0))
+        b.add_collider_plane((0.0, 1.0, 0.0), 0.0, restitution=0.0, friction=mu)
+        model = b.finalize()
+        state = model.state()
+        integ = ta.IntegratorSymplecticEuler(collision_mode=mode)
+        for _ in range(steps):
+            integ.step(model, state, h)
+        ends[mode] = state.particle_x.to_numpy()[0]
+    n = np.arange(1, steps + 1)
+    expected = h * np.sum(v0 - mu * 9.81 * n * h)
+    for mode in MODES:
+        np.testing.assert_allclose(ends[mode], [expected, 0.0, 0.0], atol=1e-12)

@@ -49,13 +49,15 @@ class _RigidCollider:
 
     motion = None
     needs_prepare = False  # no Python-side work before a step
+    heavy = False  # small tests: `collide` may unroll them
 
     @property
     def moving(self) -> bool:
         return self.motion is not None
 
-    def allocate(self) -> None:
-        """Write what the kernels read into fields (called once by the Model, after Taichi starts)."""
+    def allocate(self, reach: float = 0.0) -> None:
+        """Write what the kernels read into fields (called once by the Model, after Taichi starts; reach
+        [m]: the largest particle radius the collider will be queried with)."""
         if self.motion is not None:
             self.motion.allocate()
 
@@ -91,10 +93,17 @@ class _RigidCollider:
 
     @ti.func
     def contact(self, x, t):
-        """(sdf, normal, surface velocity) at x, t from one evaluation of the pose (moving colliders)."""
-        q, tr, omega, vel = self.motion.motion_at(t)
-        p = quat_rotate_inverse(q, x - tr)
-        return self._sdf(p), quat_rotate(q, self._normal(p)), omega.cross(x - tr) + vel
+        """(sdf, normal, surface velocity) at x, t from one evaluation of the pose."""
+        d = ti.cast(0.0, float)
+        n = ti.Vector.zero(float, 3)
+        v = ti.Vector.zero(float, 3)
+        if ti.static(self.moving):
+            q, tr, omega, vel = self.motion.motion_at(t)
+            p = quat_rotate_inverse(q, x - tr)
+            d, n, v = self._sdf(p), quat_rotate(q, self._normal(p)), omega.cross(x - tr) + vel
+        else:
+            d, n = self._sdf(x), self._normal(x)
+        return d, n, v
 
     @ti.func
     def sweep(self, x0, x1, t, h, r):

@@ -1,4 +1,5 @@
-"""Keyframed rigid motion of a collider: x_world = R(t) p + T(t) for a point p of the collider's own frame.
+"""Keyframed motion: a collider's rigid motion, x_world = R(t) p + T(t) for a point p of its own frame,
+and attachments (pinned particles that follow keyframed or rigidly moving targets).
 
 Translation is piecewise linear between keyframes; rotation is spherical linear interpolation (slerp,
 Shoemake, "Animating Rotation with Quaternion Curves", SIGGRAPH 1985, eq. on p. 249: the shortest arc
@@ -8,6 +9,8 @@ first keyframe and after the last the pose is held (velocity 0). The pose is eva
 kernels from fields written once when the model is built, so a moving collider costs no Python work
 per step. Quaternions are (x, y, z, w), scalar last (as in SciPy and Warp).
 """
+
+import math
 
 import numpy as np
 import taichi as ti
@@ -108,7 +111,6 @@ class RigidMotion:
             )
         self.rotations = _rotations(rotations, k)
         self.count = k
-        self._halvings = max(1, int(np.ceil(np.log2(k - 1)))) if k > 1 else 0  # binary search steps
         # Per segment: the relative rotation R_k^T R_{k+1} as an axis (in R_k's frame) and an angle in
         # [0, pi] (the shortest arc, as slerp takes it).
         self.axes = np.tile([1.0, 0.0, 0.0], (k, 1))
@@ -206,23 +208,7 @@ class RigidMotion:
 
     @ti.func
     def _segment(self, t):
-        """(k, s): segment k and fraction s in [0, 1] along it, t clamped to the keyframes. A binary
-        search unrolled to a fixed number of branch-free halvings (small code: it is inlined at every
-        collider test)."""
-        k = 0
-        s = ti.cast(0.0, float)
-        if ti.static(self.count > 1):
-            last = self.count - 1
-            tc = ti.min(ti.max(t, self.key_t[0]), self.key_t[last])
-            lo, hi = 0, last
-            for _ in ti.static(range(self._halvings)):
-                mid = (lo + hi) // 2
-                go = self.key_t[mid] <= tc  # invariant: key_t[lo] <= tc <= key_t[hi]
-                lo = ti.select(go, mid, lo)
-                hi = ti.select(go, hi, mid)
-            k = ti.min(lo, last - 1)
-            s = ti.min((tc - self.key_t[k]) / (self.key_t[k + 1] - self.key_t[k]), 1.0)
-        return k, s
+        return keyframe_segment(self.key_t, self.count, t)
 
     @ti.func
     def pose_at(self, t):
@@ -282,6 +268,27 @@ class RigidMotion:
 
 
 @ti.func
+def keyframe_segment(key_t: ti.template(), count: ti.template(), t):
+    """(k, s): the segment k of the `count` keyframe times key_t that holds t, and the fraction s in
+    [0, 1] along it, t clamped to the keyframes. A binary search unrolled to a fixed number of branch-free
+    halvings: small code, as it is inlined in every collider test."""
+    k = 0
+    s = ti.cast(0.0, float)
+    if ti.static(count > 1):
+        last = count - 1
+        tc = ti.min(ti.max(t, key_t[0]), key_t[last])
+        lo, hi = 0, last
+        for _ in ti.static(range(max(1, math.ceil(math.log2(count - 1))))):
+            mid = (lo + hi) // 2
+            go = key_t[mid] <= tc  # invariant: key_t[lo] <= tc <= key_t[hi]
+            lo = ti.select(go, mid, lo)
+            hi = ti.select(go, hi, mid)
+        k = ti.min(lo, last - 1)
+        s = ti.min((tc - key_t[k]) / (key_t[k + 1] - key_t[k]), 1.0)
+    return k, s
+
+
+@ti.func
 def _vec4(v, w):
     return ti.Vector([v[0], v[1], v[2], w], dt=float)
 
@@ -306,3 +313,109 @@ def quat_rotate_inverse(q, v):
     """v rotated by the inverse (conjugate) of the unit quaternion q."""
     u = ti.Vector([q[0], q[1], q[2]], dt=float)
     return v + 2.0 * u.cross(u.cross(v) - q[3] * v)
+
+
+@data_oriented
+class Attachment:
+    """Pinned particles that follow a target trajectory a user animates: keyframes times (K,) [s]
+    strictly increasing and positions (K, P, 3) [m], linearly interpolated and held outside the range,
+    or a RigidMotion that carries the particles' positions as built (rest (P, 3) [m]) rigidly. The
+    Stepper sets x = target(t + h) and v = (target(t + h) - x(t)) / h at the end of each step."""
+
+    def __init__(self, particles, *, times=None, positions=None, motion=None, rest=None):
+        self.particles = np.asarray(particles, dtype=np.int64)
+        self.count = len(self.particles)
+        self.motion = motion
+        self.moving_rigidly = motion is not None  # compile-time branch
+        if motion is None:
+            self.times = _times(times)
+            self.positions = validate.finite_array("positions", positions)
+            want = (len(self.times), self.count, 3)
+            if self.positions.shape != want:
+                raise ParameterError(
+                    f"positions must have shape (K, P, 3) = {want} (K keyframe times, P particles), "
+                    f"got {self.positions.shape}"
+                )
+        else:
+            self.rest = np.asarray(rest, dtype=np.float64)
+        self._program = None
+
+    def settings(self) -> dict:
+        out = {"particles": self.count}
+        if self.motion is not None:
+            out["motion"] = self.motion.settings()
+        else:
+            out["keyframes"] = len(self.times)
+        return out
+
+    def target(self, t: float) -> np.ndarray:
+        """(P, 3) target positions [m] at time t [s] (NumPy; the kernels evaluate the same)."""
+        if self.motion is not None:
+            return self.motion.apply(self.rest, t)
+        times = self.times
+        if len(times) == 1 or t <= times[0]:
+            return self.positions[0].copy()
+        if t >= times[-1]:
+            return self.positions[-1].copy()
+        k = int(np.searchsorted(times, t, side="right")) - 1
+        s = (t - times[k]) / (times[k + 1] - times[k])
+        return (1.0 - s) * self.positions[k] + s * self.positions[k + 1]
+
+    def allocate(self) -> None:
+        """Write the keyframes (or the rest positions and the motion) into fields, once per program."""
+        program = impl.get_runtime().prog
+        if self._program is program:
+            return
+        self._program = program
+        f = np_float()
+        if self.motion is not None:
+            self.motion.allocate()
+            self.rest_x = ti.Vector.field(3, float, self.count)
+            self.rest_x.from_numpy(self.rest.astype(f))
+        else:
+            self.key_count = len(self.times)
+            self.key_t = ti.field(float, self.key_count)
+            self.key_x = ti.Vector.field(3, float, (self.key_count, self.count))
+            self.key_t.from_numpy(self.times.astype(f))
+            self.key_x.from_numpy(self.positions.astype(f))
+
+    @ti.func
+    def position(self, j, t):
+        """Target position of the attachment's particle j at time t."""
+        x = ti.Vector.zero(float, 3)
+        if ti.static(self.moving_rigidly):
+            x = self.motion.to_world(self.rest_x[j], t)
+        else:
+            k, s = keyframe_segment(self.key_t, self.key_count, t)
+            x = self.key_x[k, j]
+            if ti.static(self.key_count > 1):
+                x = (1.0 - s) * x + s * self.key_x[k + 1, j]
+        return x
+
+
+def attachment_codes(particle_count: int, attachments) -> "ti.Field":
+    """(N,) int32 field: for each particle -1, or j * A + a for particle j of attachment a (A of them)."""
+    count = len(attachments)
+    codes = np.full(particle_count, -1, dtype=np.int32)
+    for a, att in enumerate(attachments):
+        att.allocate()
+        codes[att.particles] = np.arange(att.count) * count + a
+    field = ti.field(ti.i32, particle_count)
+    field.from_numpy(codes)
+    return field
+
+
+@ti.func
+def follow_attachments(attachments: ti.template(), codes: ti.template(), i, x0, x, v, t_end, h):
+    """(x, v) of particle i at the end of a step of length h ending at t_end: its target and the
+    velocity that reaches it from x0, if the particle is attached; else x, v unchanged."""
+    code = codes[i]
+    if code >= 0:
+        count = ti.static(len(attachments))
+        a = code % count
+        j = code // count
+        for k in ti.static(range(count)):
+            if a == k:
+                x = attachments[k].position(j, t_end)
+        v = (x - x0) / h
+    return x, v

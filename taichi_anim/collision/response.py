@@ -34,8 +34,58 @@ def any_moving(colliders) -> bool:
     return any(c.moving for c in colliders)
 
 
+def any_heavy(colliders) -> bool:
+    """Whether any collider has large tests (a mesh)."""
+    return any(c.heavy for c in colliders)
+
+
+def _fused(c) -> bool:
+    """Whether to ask collider c for (sdf, normal, velocity) at once: one pose or distance query for
+    all three (moving colliders, meshes)."""
+    return c.moving or c.heavy
+
+
+def _may_stop(stop) -> bool:
+    """False for the compile-time constant False (the unrolled loop), True for a run-time flag."""
+    return stop is not False
+
+
+def _runtime_loop(colliders) -> bool:
+    """Whether to run the impacts of a step in a run-time loop instead of unrolling them: a moving
+    collider's tests evaluate poses, a mesh's walk a hierarchy, and unrolling those MAX_HITS times made
+    compilation take minutes."""
+    return any(_fused(c) for c in colliders)
+
+
 @ti.func
 def _project(colliders: ti.template(), x, v, r, rest_speed, x_prev, t, h):
+    if ti.static(any_heavy(colliders)):
+        # A mesh's distance query is large code: one copy of each collider's test, in a run-time loop
+        # over the response pass and the position-only pass.
+        for p in range(2):
+            x, v = _project_pass(colliders, x, v, r, rest_speed, x_prev, t, h, p == 0)
+    else:
+        x, v = _project_light(colliders, x, v, r, rest_speed, x_prev, t, h)
+    return x, v
+
+
+@ti.func
+def _project_pass(colliders: ti.template(), x, v, r, rest_speed, x_prev, t, h, respond_too):
+    """One pass of `_project_each` over every collider: with the response (friction, velocity) if
+    respond_too, else positions only."""
+    for c in ti.static(colliders):
+        d, n, vs = c.contact(x, t)
+        d -= r
+        if d < 0.0:
+            x -= d * n
+            if respond_too:
+                x, v = _slide_and_respond(c, x, v - vs, d, n, x - x_prev - h * vs, rest_speed)
+                v += vs
+    return x, v
+
+
+@ti.func
+def _project_light(colliders: ti.template(), x, v, r, rest_speed, x_prev, t, h):
     # One branch for the common case (touching nothing), not one per collider: a branch-free minimum
     # (a short-circuit `and` would compile to one branch per collider again).
     nearest = ti.cast(1e30, float)
@@ -66,8 +116,8 @@ def _project_each(colliders: ti.template(), x, v, r, rest_speed, x_prev, t, h):
     # x_prev is where the step started (x itself: no displacement); on a moving surface the displacement
     # and the velocity are taken relative to the surface.
     for c in ti.static(colliders):
-        if ti.static(c.moving):
-            d, n, vs = c.contact(x, t)  # one pose evaluation for all three
+        if ti.static(_fused(c)):
+            d, n, vs = c.contact(x, t)  # one pose evaluation (or distance query) for all three
             d -= r
             if d < 0.0:
                 x -= d * n
@@ -82,7 +132,7 @@ def _project_each(colliders: ti.template(), x, v, r, rest_speed, x_prev, t, h):
     # The friction shift moves a point back along one surface, possibly a hair into another (a corner):
     # one more position-only pass keeps every collider's sdf >= r.
     for c in ti.static(colliders):
-        if ti.static(c.moving):
+        if ti.static(_fused(c)):
             d, n, _ = c.contact(x, t)
             if d < r:
                 x -= (d - r) * n
@@ -120,10 +170,16 @@ def _first_hit(colliders: ti.template(), xs, xe, t, h, r):
 
 
 @ti.func
-def _impact(colliders: ti.template(), xs, vs, xe, ve, frac, t, dt, r, rest_speed):
+def _impact(colliders: ti.template(), xs, vs, xe, ve, frac, t, dt, r, rest_speed, stop):
     """The first impact on what is left of the step (the path xs -> xe, the last frac of [t, t + dt]),
-    resolved: the state at impact and the rest of the step with the new velocity (unchanged if none)."""
+    resolved: the state at impact and the rest of the step with the new velocity (unchanged if none);
+    with `stop`, the particle stays at the contact instead (the relative normal velocity removed)."""
     tau, n, e, mu, vsurf = _first_hit(colliders, xs, xe, t + (1.0 - frac) * dt, frac * dt, r)
+    if ti.static(_may_stop(stop)):
+        if stop and tau <= 1.0:
+            xe = xs + tau * (xe - xs)
+            ve = respond(ve - vsurf, n, 0.0, mu) + vsurf
+            tau = NO_HIT  # resolved: no bounce below
     if tau <= 1.0:
         xh = xs + tau * (xe - xs)
         # Velocity at impact interpolated along the step; the rest of the step keeps the step's velocity
@@ -138,6 +194,15 @@ def _impact(colliders: ti.template(), xs, vs, xe, ve, frac, t, dt, r, rest_speed
             vh += vsurf
         rest = 1.0 - tau
         ve = vh + rest * (ve - vs)
+        # A resting or sliding contact: the velocity change of the rest of the step (gravity) still
+        # drives the particle into the surface. Remove that normal part, with Coulomb friction on it, so
+        # that the rest of the path slides along the surface instead of hitting it again at once
+        # (which ended in the stop below and left the particle where it was for the step).
+        if ti.static(any_moving(colliders)):
+            if (ve - vsurf).dot(n) < 0.0:
+                ve = respond(ve - vsurf, n, 0.0, mu) + vsurf
+        elif ve.dot(n) < 0.0:
+            ve = respond(ve, n, 0.0, mu)
         frac *= rest
         xs, vs = xh, vh
         xe = xh + frac * dt * ve
@@ -154,24 +219,28 @@ def collide(colliders: ti.template(), mode: ti.template(), x0, v0, x1, v1, t, dt
     if ti.static(mode == CollisionMode.BACKWARD):
         xs, vs, xe, ve = x0, v0, x1, v1
         frac = ti.cast(1.0, float)  # fraction of dt still to run from xs
-        if ti.static(any_moving(colliders)):
-            # A run-time loop: a moving collider's tests evaluate poses, and unrolling them MAX_HITS
-            # times made compilation take minutes.
-            for _ in range(MAX_HITS):
-                xs, vs, xe, ve, frac = _impact(colliders, xs, vs, xe, ve, frac, t, dt, r, rest_speed)
+        if ti.static(_runtime_loop(colliders)):
+            # One copy of the swept tests: the last pass stops at the contact (see below) instead of
+            # bouncing.
+            for k in range(MAX_HITS + 1):
+                xs, vs, xe, ve, frac = _impact(
+                    colliders, xs, vs, xe, ve, frac, t, dt, r, rest_speed, k == MAX_HITS
+                )
+            x, v = xe, ve
         else:
             for _ in ti.static(range(MAX_HITS)):
-                xs, vs, xe, ve, frac = _impact(colliders, xs, vs, xe, ve, frac, t, dt, r, rest_speed)
-        # Impacts left after MAX_HITS (the step's velocity change keeps driving the path into a surface):
-        # stop at the first contact on what is left of the path instead of letting the safety projection
-        # push the particle out of whichever side is nearest, possibly the far side of a thin solid.
-        tau, n, _, mu, vsurf = _first_hit(colliders, xs, xe, t + (1.0 - frac) * dt, frac * dt, r)
-        if tau <= 1.0:
-            xe = xs + tau * (xe - xs)
-            if ti.static(any_moving(colliders)):
-                ve = respond(ve - vsurf, n, 0.0, mu) + vsurf
-            else:
-                ve = respond(ve, n, 0.0, mu)
-        x, v = xe, ve
+                xs, vs, xe, ve, frac = _impact(colliders, xs, vs, xe, ve, frac, t, dt, r, rest_speed, False)
+            # Impacts left after MAX_HITS (the step's velocity change keeps driving the path into a
+            # surface): stop at the first contact on what is left of the path instead of letting the
+            # safety projection push the particle out of whichever side is nearest, possibly the far
+            # side of a thin solid.
+            tau, n, _, mu, vsurf = _first_hit(colliders, xs, xe, t + (1.0 - frac) * dt, frac * dt, r)
+            if tau <= 1.0:
+                xe = xs + tau * (xe - xs)
+                if ti.static(any_moving(colliders)):
+                    ve = respond(ve - vsurf, n, 0.0, mu) + vsurf
+                else:
+                    ve = respond(ve, n, 0.0, mu)
+            x, v = xe, ve
     # Safety net in both modes: nothing ends a step inside a collider (round-off, multiple contacts).
     return _project(colliders, x, v, r, rest_speed, x0, t + dt, dt)
