@@ -1,7 +1,7 @@
 """Demo scenes, by name: what `taichi-anim demo NAME` runs."""
 
 from .. import validate
-from . import blobs, cloth, drape, flag, fountain, layers, spheres
+from . import blobs, cloth, drape, flag, fountain, layers, spheres, tablecloth
 from .base import Scene
 
 SCENES = {
@@ -12,6 +12,7 @@ SCENES = {
     "drape": drape,
     "flag": flag,
     "layers": layers,
+    "tablecloth": tablecloth,
 }
 DEFAULT_SCENE = "fountain"
 

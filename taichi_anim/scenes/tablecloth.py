@@ -40,7 +40,7 @@ def build(
     seed: int = 0,
     integrator: str = "implicit_euler",
     resolution: int = 48,
-    size: float = 1.4,
+    size: float = 1.6,
     thickness: float = 0.004,
     self_contact: bool = True,
 ) -> Scene:
