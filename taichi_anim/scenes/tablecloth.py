@@ -40,18 +40,19 @@ def build(
     seed: int = 0,
     integrator: str = "implicit_euler",
     resolution: int = 48,
-    size: float = 1.6,
+    size: float = 1.8,
     thickness: float = 0.004,
     self_contact: bool = True,
 ) -> Scene:
-    """A `size` [m] square cloth of `resolution`^2 vertices, released flat 10 cm above a 0.9 x 0.6 m table
-    (top at 0.5 m) and off its centre, so one side hangs over the edge, reaches the floor and folds."""
+    """A `size` [m] square cloth of `resolution`^2 vertices, released flat 40 cm above a 0.9 x 0.6 m table
+    (top at 0.5 m) and off its centre, so that 0.85 m of it hangs over one edge: it reaches the floor
+    with length to spare and folds onto itself there."""
     n = int(resolution)
     table = table_mesh()
     b = Builder()
     b.add_force_gravity()
     b.add_cloth_grid(
-        origin=(-0.45, 0.6, -0.5 * size),
+        origin=(-0.5, 0.9, -0.5 * size),
         size=(size, size),
         resolution=(n, n),
         plane="xz",
