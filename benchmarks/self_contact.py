@@ -91,7 +91,10 @@ def measure_steps(model, state, integrator, dt: float, steps: int) -> dict:
 
 def share(n: int, quick: bool, broad_phase: str = "auto", explicit: bool = True) -> dict:
     common.log(f"share: n = {n}, broad phase {broad_phase}")
-    model = build_model(layers=2, resolution=n, broad_phase=broad_phase)
+    # Finer sheets put more primitives within a thickness of a vertex: larger pair lists.
+    model = build_model(
+        layers=2, resolution=n, broad_phase=broad_phase, pairs_per_vertex=256 if n > 64 else 128
+    )
     state = model.state()
     run_up = implicit()
     t0 = time.perf_counter()
@@ -174,10 +177,11 @@ def summary(frames: dict) -> dict:
 
 def report(shares: list, newton: dict | None, args, load0: str, other) -> str:
     info = common.machine_info()
+    part = "" if args.part == "all" else f" --part {args.part}"
     lines = [
         "## Cloth self-contact (`benchmarks/self_contact.py`)",
         "",
-        f"Command: `{common.command_line(args, 'self_contact.py')}`. Settings in the script's docstring.",
+        f"Command: `{common.command_line(args, 'self_contact.py')}{part}`. Settings: the script's docstring.",
         "",
         "### Share of the step",
         "",
@@ -280,10 +284,11 @@ def main(argv=None) -> None:
     newton = None
     if args.part in ("all", "newton"):
         newton = newton_part(3 if args.quick else FRAMES)
-    (folder / "self_contact.json").write_text(json.dumps({"share": shares, "newton": newton}, indent=1))
+    name = "self_contact" + ("" if args.part == "all" else f"_{args.part}")
+    (folder / f"{name}.json").write_text(json.dumps({"share": shares, "newton": newton}, indent=1))
     text = report(shares, newton, args, load0, other)
-    (folder / "self_contact.md").write_text(text + "\n")
-    common.write_section(md, "self_contact", text)
+    (folder / f"{name}.md").write_text(text + "\n")
+    common.write_section(md, name, text)
     print(text)
 
 

@@ -30,6 +30,7 @@ def build_model(
     friction: float = 0.3,
     guard: bool = True,
     broad_phase: str = "auto",
+    pairs_per_vertex: int = 128,
     seed: int = 0,
 ):
     """The model of the scene: `layers` horizontal `size` [m] sheets of `resolution`^2 vertices, the lowest
