@@ -40,22 +40,26 @@ def build(
     seed: int = 0,
     integrator: str = "implicit_euler",
     resolution: int = 48,
-    size: float = 1.8,
+    width: float = 1.6,
+    height: float = 1.0,
     thickness: float = 0.004,
     self_contact: bool = True,
 ) -> Scene:
-    """A `size` [m] square cloth of `resolution`^2 vertices, released flat 40 cm above a 0.9 x 0.6 m table
-    (top at 0.5 m) and off its centre, so that 0.85 m of it hangs over one edge: it reaches the floor
-    with length to spare and folds onto itself there."""
+    """A `width` x `height` [m] cloth of `resolution` vertices across (and as many per metre up), released
+    hanging straight down (vertical, in the plane z = 0) 6 cm above a 0.9 x 0.6 m table whose top is at
+    0.5 m, its left 0.65 m over the table and the rest past the table's edge: the part over the table
+    lands on it edge first and folds onto itself there, the rest falls past the edge to the floor and
+    folds onto itself on the floor."""
     n = int(resolution)
+    rows = max(2, round(n * height / width))
     table = table_mesh()
     b = Builder()
     b.add_force_gravity()
     b.add_cloth_grid(
-        origin=(-0.5, 0.9, -0.5 * size),
-        size=(size, size),
-        resolution=(n, n),
-        plane="xz",
+        origin=(-0.2, 0.56, 0.0),
+        size=(width, height),
+        resolution=(n, rows),
+        plane="xy",
         material=ClothMaterial(density=0.2, bend_stiffness=20.0),
         thickness=thickness,
     )
@@ -74,9 +78,15 @@ def build(
         integrator=cloth_integrator(integrator),
         dt=FRAME_DT / SUBSTEPS,
         substeps=SUBSTEPS,
-        bounds=((-reach, 0.0, -reach), (reach, 0.8, reach)),
+        bounds=((-0.6, 0.0, -0.6), (1.6, 1.6, 0.6)),
         point_radius=thickness,
-        options={"resolution": n, "size": size, "thickness": thickness, "self_contact": self_contact},
+        options={
+            "resolution": [n, rows],
+            "width": width,
+            "height": height,
+            "thickness": thickness,
+            "self_contact": self_contact,
+        },
         frames=150,
         props=[table],
         guides=(floor, np.roll(floor, -1, axis=0)),
