@@ -1,7 +1,7 @@
 """Demo scenes, by name: what `taichi-anim demo NAME` runs."""
 
 from .. import validate
-from . import blobs, cloth, drape, flag, fountain, spheres
+from . import blobs, cloth, drape, flag, fountain, moving_mesh, spheres
 from .base import Scene
 
 SCENES = {
@@ -11,6 +11,7 @@ SCENES = {
     "cloth": cloth,
     "drape": drape,
     "flag": flag,
+    "moving_mesh": moving_mesh,
 }
 DEFAULT_SCENE = "fountain"
 
