@@ -1,7 +1,7 @@
 """Demo scenes, by name: what `taichi-anim demo NAME` runs."""
 
 from .. import validate
-from . import blobs, cloth, drape, flag, fountain, layers, spheres, tablecloth
+from . import blobs, cloth, drape, flag, fountain, layers, moving_mesh, spheres, tablecloth
 from .base import Scene
 
 SCENES = {
@@ -13,6 +13,7 @@ SCENES = {
     "flag": flag,
     "layers": layers,
     "tablecloth": tablecloth,
+    "moving_mesh": moving_mesh,
 }
 DEFAULT_SCENE = "fountain"
 
