@@ -53,7 +53,13 @@ def build_model(
     b.add_collider_sphere((0.0, ball_radius, 0.0), ball_radius, restitution=0.0, friction=friction)
     b.add_collider_plane(normal=(0.0, 1.0, 0.0), offset=0.0, restitution=0.0, friction=friction)
     if self_contact:
-        b.add_cloth_self_contact(thickness=thickness, friction=friction, guard=guard, broad_phase=broad_phase)
+        b.add_cloth_self_contact(
+            thickness=thickness,
+            friction=friction,
+            guard=guard,
+            broad_phase=broad_phase,
+            pairs_per_vertex=pairs_per_vertex,
+        )
     return b.finalize(seed=seed)
 
 
