@@ -103,15 +103,12 @@ def share(n: int, quick: bool, broad_phase: str = "auto", explicit: bool = True)
     run_up_s = time.perf_counter() - t0
     snap = state.particle_x.to_numpy(), state.particle_v.to_numpy()
     mass = 0.2 * (1.0 / (n - 1)) ** 2
-    out = {"n": n, "vertices": model.particle_count, "run_up_s": run_up_s}
-    for name, integ, dt in (
-        ("implicit Euler", implicit(), FRAME_DT / SUBSTEPS),
-        (
-            "symplectic Euler",
-            ta.make_integrator("symplectic_euler", check_every=10),
-            0.4 * np.sqrt(mass / 1e3),
-        ),
-    ):
+    out = {"n": n, "vertices": model.particle_count, "run_up_s": run_up_s, "broad_phase": broad_phase}
+    methods = [("implicit Euler", implicit(), FRAME_DT / SUBSTEPS)]
+    if explicit:
+        stable = 0.4 * np.sqrt(mass / 1e3)
+        methods.append(("symplectic Euler", ta.make_integrator("symplectic_euler", check_every=10), stable))
+    for name, integ, dt in methods:
         state.particle_x.from_numpy(snap[0])
         state.particle_v.from_numpy(snap[1])
         out[name] = measure_steps(model, state, integ, dt, 4 if quick else STEPS)
@@ -280,7 +277,7 @@ def main(argv=None) -> None:
     if args.part in ("all", "share"):
         shares = [share(n, args.quick) for n in ((16, 24) if args.quick else (64, 128))]
         # The box structures of spatial/select.py on the Newton scene's sheets (implicit steps only).
-        shares += [share(17 if args.quick else 33, args.quick, bp, False) for bp in ("bvh", "grid", "octree")]
+        shares += [share(17 if args.quick else 33, args.quick, bp) for bp in ("bvh", "grid", "octree")]
     newton = None
     if args.part in ("all", "newton"):
         newton = newton_part(3 if args.quick else FRAMES)
