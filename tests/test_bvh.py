@@ -10,10 +10,15 @@ import taichi as ti
 
 import taichi_anim as ta
 from taichi_anim import ParameterError
+from taichi_anim.runtime import CPU_SERIAL_BELOW
 from taichi_anim.spatial import BVH, aabb_ray
 from taichi_anim.spatial.lbvh import ray_inv_dir
 
 MAX_HITS = 2048
+# The f64 tests share one tree capacity and one collector size: the same field layout gives the same
+# compiled kernels, which Taichi's offline cache then shares between the tests (compiling the build and
+# the queries costs more than running them).
+CAP, NQ = 4000, 300
 
 
 @ti.data_oriented
@@ -83,6 +88,12 @@ class Collector:
             assert len(got) == len(set(got)), f"query {i} visited a primitive twice"
             out.append(set(got))
         return out
+
+
+def tree_and_collector(**options):
+    """A BVH of capacity CAP and a collector of NQ queries that can list every primitive."""
+    tree = BVH(CAP, **options)
+    return tree, Collector(tree, NQ, max_hits=CAP)
 
 
 def fill(tree, lo, hi):
@@ -180,10 +191,9 @@ def tree_check(tree, n):
 
 def test_overlap_and_sphere_equal_brute_force():
     rng = np.random.default_rng(1)
-    tree = BVH(2000)
-    nq = 300
-    col = Collector(tree, nq)
-    for n in (1, 2, 3, 17, 2000):
+    tree, col = tree_and_collector()
+    nq = NQ
+    for n in (1, 2, 3, 17, CAP):
         lo, hi = random_boxes(n, rng)
         fill(tree, lo, hi)
         tree.build(n)
@@ -200,9 +210,8 @@ def test_overlap_and_sphere_equal_brute_force():
 
 def test_rays_equal_brute_force():
     rng = np.random.default_rng(2)
-    n, nq = 1500, 300
-    tree = BVH(n)
-    col = Collector(tree, nq)
+    n, nq = 1500, NQ
+    tree, col = tree_and_collector()
     lo, hi = random_boxes(n, rng)
     fill(tree, lo, hi)
     tree.build(n)
@@ -220,15 +229,15 @@ def test_rays_equal_brute_force():
     # the slab predicate itself against a dense sampling of the segments (a hit sampled is a hit found)
     for i in range(45, 60):
         s = np.linspace(0.0, t[i], 2001)[:, None] * d[i] + o[i]
-        inside = np.nonzero(np.any(np.all((s[:, None] >= lo) & (s[:, None] <= hi), -1), 0))[0]
+        near = np.nonzero(np.all(lo <= s.max(0), 1) & np.all(s.min(0) <= hi, 1))[0]  # meet the samples' box
+        inside = near[np.any(np.all((s[:, None] >= lo[near]) & (s[:, None] <= hi[near]), -1), 0)]
         assert set(inside.tolist()) <= got[i]
 
 
 def test_refit_after_moving_boxes_equals_brute_force():
     rng = np.random.default_rng(3)
     n, nq = 1000, 200
-    tree = BVH(n)
-    col = Collector(tree, nq)
+    tree, col = tree_and_collector()
     lo, hi = random_boxes(n, rng)
     fill(tree, lo, hi)
     tree.build(n)
@@ -256,9 +265,8 @@ def test_deep_trees_from_equal_and_nested_codes():
     c[31] = 1024.0  # with c[30] = 0 the centres span [0, 1024]^3: one unit per quantisation cell
     c = np.repeat(c + 0.5 * (c < 1024.0), 100, axis=0)
     n = len(c)
-    tree = BVH(n)
+    tree, col = tree_and_collector()
     nq = 100
-    col = Collector(tree, nq, max_hits=n)
     e = np.where(np.arange(n)[:, None] % 3 == 0, 0.0, 0.25)
     cases = (((-np.ones((n, 3)), np.ones((n, 3))), 13), ((c - e, c + e), 37))
     for (lo, hi), min_depth in cases:
@@ -274,8 +282,8 @@ def test_deep_trees_from_equal_and_nested_codes():
 
 def test_update_rebuilds_only_when_cost_ratio_passes():
     rng = np.random.default_rng(5)
-    n = 4000
-    tree = BVH(n, rebuild_ratio=1.5)
+    n = CAP
+    tree, _ = tree_and_collector(rebuild_ratio=1.5)  # the collector unused: the shared field layout
     lo, hi = random_boxes(n, rng, shared=0.0, huge=False)
     fill(tree, lo, hi)
     tree.build(n)
@@ -302,11 +310,11 @@ def test_update_rebuilds_only_when_cost_ratio_passes():
 
 @pytest.mark.parametrize("climb", [False, True])
 def test_f32_and_parallel_loops(climb):
-    """Single precision, and a capacity above the serial-loop threshold (the parallel build and refit);
+    """Single precision, and a capacity at the serial-loop threshold (the parallel build and refit);
     also with the GPU's refit (atomic visit counters), forced on the CPU."""
     ta.init("cpu", precision="f32")
     rng = np.random.default_rng(6)
-    n, nq = 30_000, 200
+    n, nq = CPU_SERIAL_BELOW, 200
     tree = BVH(n)
     tree._climb = climb
     col = Collector(tree, nq)
@@ -328,8 +336,7 @@ def test_f32_and_parallel_loops(climb):
 
 
 def test_empty_tree_and_parameter_errors():
-    tree = BVH(4)
-    col = Collector(tree, 2)
+    tree, col = tree_and_collector()
     tree.build(0)
     q = np.array([[-1e9] * 3, [0.0] * 3])
     col.boxes(q, -q, 2)
@@ -339,6 +346,6 @@ def test_empty_tree_and_parameter_errors():
     with pytest.raises(ParameterError, match="rebuild_ratio"):
         BVH(4, rebuild_ratio=1.0)
     with pytest.raises(ParameterError, match="n must"):
-        tree.build(5)
+        tree.build(CAP + 1)
     with pytest.raises(ParameterError, match="n must"):
         tree.build(-1)

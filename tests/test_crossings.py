@@ -28,6 +28,13 @@ from taichi_anim.spatial.crossings import (
 )
 
 
+@pytest.fixture(autouse=True)
+def taichi_f64():
+    """The crossing checks are NumPy only: this replaces conftest's per-test Taichi runtime, whose start
+    would cost more than most of these tests."""
+    yield
+
+
 def sub(a, b):
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 

@@ -18,6 +18,10 @@ from taichi_anim.spatial.intersect import ray_triangle
 from taichi_anim.spatial.mesh_query import TriangleMesh, triangle_box_overlap, winding_number_np
 
 MAX_HITS = 256
+# Every f64 test builds its mesh with these capacities and its scanner with NQ query rows: the same field
+# layout gives the same compiled kernels, which Taichi's offline cache then shares between the tests
+# (compiling the BVH queries costs far more than running them).
+FACE_CAP, VERTEX_CAP, NQ = 1280, 1800, 300
 
 
 def icosphere(subdivisions, radius=1.0):
@@ -144,34 +148,47 @@ class Brute:
             self.hits[i, ret] = f
         ret += 1
 
+    # The tree queries and the scans are separate kernels: a test that needs only the scan then compiles
+    # only the scan.
     @ti.kernel
-    def boxes(self, lo: ti.types.ndarray(), hi: ti.types.ndarray(), use_tree: ti.i32):
+    def tree_boxes(self, lo: ti.types.ndarray(), hi: ti.types.ndarray()):
         for k in range(lo.shape[0]):
             a = ti.Vector([lo[k, 0], lo[k, 1], lo[k, 2]], float)
             b = ti.Vector([hi[k, 0], hi[k, 1], hi[k, 2]], float)
             acc = 0
-            if use_tree:
-                self.mesh.for_each_triangle_in_box(k, a, b, self.visit, acc)
-            else:
-                for f in range(self.mesh.face_count_field[None]):
-                    p, q, r = self.mesh.corners(f)
-                    if triangle_box_overlap(p, q, r, a, b):
-                        self.visit(k, f, acc)
+            self.mesh.for_each_triangle_in_box(k, a, b, self.visit, acc)
             self.count[k] = acc
 
     @ti.kernel
-    def spheres(self, c: ti.types.ndarray(), r: ti.types.ndarray(), use_tree: ti.i32):
+    def scan_boxes(self, lo: ti.types.ndarray(), hi: ti.types.ndarray()):
+        for k in range(lo.shape[0]):
+            a = ti.Vector([lo[k, 0], lo[k, 1], lo[k, 2]], float)
+            b = ti.Vector([hi[k, 0], hi[k, 1], hi[k, 2]], float)
+            acc = 0
+            for f in range(self.mesh.face_count_field[None]):
+                p, q, r = self.mesh.corners(f)
+                if triangle_box_overlap(p, q, r, a, b):
+                    self.visit(k, f, acc)
+            self.count[k] = acc
+
+    @ti.kernel
+    def tree_spheres(self, c: ti.types.ndarray(), r: ti.types.ndarray()):
         for k in range(c.shape[0]):
             p = ti.Vector([c[k, 0], c[k, 1], c[k, 2]], float)
             acc = 0
-            if use_tree:
-                self.mesh.for_each_triangle_in_sphere(k, p, r[k], self.visit, acc)
-            else:
-                for f in range(self.mesh.face_count_field[None]):
-                    a, b, cc = self.mesh.corners(f)
-                    w = point_triangle_closest(p, a, b, cc)
-                    if (p - (w[0] * a + w[1] * b + w[2] * cc)).norm_sqr() <= r[k] * r[k]:
-                        self.visit(k, f, acc)
+            self.mesh.for_each_triangle_in_sphere(k, p, r[k], self.visit, acc)
+            self.count[k] = acc
+
+    @ti.kernel
+    def scan_spheres(self, c: ti.types.ndarray(), r: ti.types.ndarray()):
+        for k in range(c.shape[0]):
+            p = ti.Vector([c[k, 0], c[k, 1], c[k, 2]], float)
+            acc = 0
+            for f in range(self.mesh.face_count_field[None]):
+                a, b, cc = self.mesh.corners(f)
+                w = point_triangle_closest(p, a, b, cc)
+                if (p - (w[0] * a + w[1] * b + w[2] * cc)).norm_sqr() <= r[k] * r[k]:
+                    self.visit(k, f, acc)
             self.count[k] = acc
 
     def lists(self, nq):
@@ -181,6 +198,12 @@ class Brute:
         out = [h[i, : c[i]].tolist() for i in range(nq)]
         assert all(len(x) == len(set(x)) for x in out)
         return [set(x) for x in out]
+
+
+def mesh_and_brute(v, f):
+    """The mesh with the shared capacities, and its scanner (see FACE_CAP)."""
+    mesh = TriangleMesh(v, f, face_capacity=FACE_CAP, vertex_capacity=VERTEX_CAP)
+    return mesh, Brute(mesh, NQ)
 
 
 def probe_points(v, f, nq, rng):
@@ -196,8 +219,7 @@ def probe_points(v, f, nq, rng):
     return p
 
 
-def check_closest_and_rays(mesh, v, f, rng, nq=300, max_dist=math.inf, brute=None, rtol=1e-9):
-    brute = brute or Brute(mesh, nq)
+def check_closest_and_rays(mesh, v, f, rng, brute, nq=NQ, max_dist=math.inf, rtol=1e-9):
     p = probe_points(v, f, nq, rng)
     got = mesh.closest_points(p, max_dist=max_dist)
     want = [np.zeros(nq), np.zeros(nq, np.int32), np.zeros((nq, 3))]
@@ -224,21 +246,20 @@ def check_closest_and_rays(mesh, v, f, rng, nq=300, max_dist=math.inf, brute=Non
     return got
 
 
-def check_box_and_sphere(mesh, v, f, rng, nq=300, brute=None):
-    brute = brute or Brute(mesh, nq)
+def check_box_and_sphere(mesh, v, f, rng, brute, nq=NQ):
     c = probe_points(v, f, nq, rng)
     e = rng.uniform(0.0, 0.3, (nq, 3))
     e[:15] = 0.0  # point boxes on vertices and edges
     lo, hi = c - e, c + e
-    brute.boxes(lo, hi, 1)
+    brute.tree_boxes(lo, hi)
     got = brute.lists(nq)
-    brute.boxes(lo, hi, 0)
+    brute.scan_boxes(lo, hi)
     assert got == brute.lists(nq)
     r = rng.uniform(0.0, 0.3, nq)
     r[:15] = 0.0
-    brute.spheres(c, r, 1)
+    brute.tree_spheres(c, r)
     got = brute.lists(nq)
-    brute.spheres(c, r, 0)
+    brute.scan_spheres(c, r)
     assert got == brute.lists(nq)
     return lo, hi, got
 
@@ -246,37 +267,35 @@ def check_box_and_sphere(mesh, v, f, rng, nq=300, brute=None):
 def test_soup_queries_equal_brute_force():
     rng = np.random.default_rng(21)
     v, f = soup(600, rng)
-    mesh = TriangleMesh(v, f)
-    brute = Brute(mesh, 300)
-    check_closest_and_rays(mesh, v, f, rng, brute=brute)
-    check_closest_and_rays(mesh, v, f, rng, max_dist=0.05, brute=brute)
-    check_box_and_sphere(mesh, v, f, rng, brute=brute)
+    mesh, brute = mesh_and_brute(v, f)
+    check_closest_and_rays(mesh, v, f, rng, brute)
+    check_closest_and_rays(mesh, v, f, rng, brute, max_dist=0.05)
+    check_box_and_sphere(mesh, v, f, rng, brute)
 
 
 def test_sphere_and_grid_queries_equal_brute_force():
     rng = np.random.default_rng(22)
     sphere = icosphere(3, radius=0.7)
-    mesh = TriangleMesh(*sphere, face_capacity=1280, vertex_capacity=642)
-    brute = Brute(mesh, 300)
+    mesh, brute = mesh_and_brute(*sphere)
     for v, f in (sphere, grid(24)):
         mesh.set_mesh(v, f)
-        t, face, u, w = check_closest_and_rays(mesh, v, f, rng, brute=brute)
+        t, face, u, w = check_closest_and_rays(mesh, v, f, rng, brute)
         assert (face >= 0).sum() > 20
-        check_box_and_sphere(mesh, v, f, rng, brute=brute)
+        check_box_and_sphere(mesh, v, f, rng, brute)
 
 
 def test_deformed_mesh_refit_and_update():
     rng = np.random.default_rng(23)
     v, f = icosphere(3)
-    mesh = TriangleMesh(v, f)
+    mesh, brute = mesh_and_brute(v, f)
     for step in range(3):
         v = v * np.array([1.0 + 0.3 * step, 1.0, 1.0 - 0.2 * step]) + 0.05 * rng.normal(size=v.shape)
         if step == 2:
-            mesh.vertex_x.from_numpy(v)
+            mesh.vertex_x.from_numpy(np.vstack([v, np.zeros((VERTEX_CAP - len(v), 3))]))
             mesh.refit()
         else:
             mesh.set_vertices(v)
-        check_closest_and_rays(mesh, v, f, rng, nq=150)
+        check_closest_and_rays(mesh, v, f, rng, brute, nq=150)
     # scramble which vertex sits where: the tree's cost soars and update() rebuilds
     builds = mesh.bvh.build_count
     assert mesh.set_vertices(v[rng.permutation(len(v))])
@@ -308,13 +327,12 @@ def test_triangle_box_overlap_against_clipping():
     disagree with the box grown or shrunk by 1e-9) are left out."""
     rng = np.random.default_rng(24)
     v, f = soup(200, rng)
-    mesh = TriangleMesh(v, f)
+    mesh, brute = mesh_and_brute(v, f)
     nq = 40
-    brute = Brute(mesh, nq)
     lo, hi = (rng.uniform(-2.0, 1.0, (nq, 3)) for _ in range(2))
     lo, hi = np.minimum(lo, hi), np.maximum(lo, hi)
     lo[:, 0] = hi[:, 0] - 0.3
-    brute.boxes(lo, hi, 0)
+    brute.scan_boxes(lo, hi)
     got = brute.lists(nq)
     checked = 0
     tlo, thi = v[f].min(1), v[f].max(1)
@@ -334,7 +352,7 @@ def test_triangle_box_overlap_against_clipping():
 def test_winding_number_of_a_closed_sphere():
     rng = np.random.default_rng(25)
     v, f = icosphere(2)
-    mesh = TriangleMesh(v, f)
+    mesh = TriangleMesh(v, f, face_capacity=FACE_CAP, vertex_capacity=VERTEX_CAP)
     p = rng.uniform(-1.5, 1.5, (400, 3))
     r = np.linalg.norm(p, axis=1)
     p = p[(r < 0.75) | (r > 1.05)]  # clear of the faceted surface (inscribed radius > 0.79)
@@ -355,7 +373,7 @@ def test_f32_parallel_icosphere():
     v, f = icosphere(5)  # 20480 faces: the BVH's loops run in parallel
     mesh = TriangleMesh(v, f)
     v32 = v.astype(np.float32).astype(np.float64)
-    check_closest_and_rays(mesh, v32, f, rng, nq=100, rtol=1e-5)
+    check_closest_and_rays(mesh, v32, f, rng, Brute(mesh, 100), nq=100, rtol=1e-5)
 
 
 def test_bad_meshes_raise():
@@ -376,8 +394,8 @@ def test_bad_meshes_raise():
         TriangleMesh(v, f.astype(float))
     with pytest.raises(ParameterError, match="degenerate mesh"):
         TriangleMesh(np.zeros((3, 3)), [[0, 1, 2]])
-    mesh = TriangleMesh(v, f)
+    mesh = TriangleMesh(v, f, face_capacity=FACE_CAP, vertex_capacity=VERTEX_CAP)
     with pytest.raises(ParameterError, match="vertex_capacity"):
-        mesh.set_mesh(np.vstack([v, v + 3.0]), f)
+        mesh.set_mesh(np.vstack([v + 3.0 * k for k in range(VERTEX_CAP // len(v) + 1)]), f)
     with pytest.raises(ParameterError, match="expected 12 rows"):
         mesh.set_vertices(v[:5])

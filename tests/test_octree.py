@@ -9,6 +9,7 @@ import pytest
 
 import taichi_anim as ta
 from taichi_anim import ParameterError
+from taichi_anim.runtime import CPU_SERIAL_BELOW
 from taichi_anim.spatial import BVH, Octree, TriGrid
 from taichi_anim.spatial.select import (
     CROSSOVER_N,
@@ -21,6 +22,9 @@ from taichi_anim.spatial.select import (
 from .test_bvh import Collector, brute_boxes, brute_spheres, fill, queries, random_boxes
 
 CLASSES = [Octree, TriGrid, BruteBoxes]
+# The f64 query tests of a class share one capacity and collector size: the same field layout gives the
+# same compiled kernels, which Taichi's offline cache then shares between the tests.
+CAP, NQ = 2000, 200
 
 
 def check(tree, col, lo, hi, rng, nq):
@@ -39,10 +43,10 @@ def check(tree, col, lo, hi, rng, nq):
 @pytest.mark.parametrize("cls", CLASSES)
 def test_queries_equal_brute_force(cls):
     rng = np.random.default_rng(11)
-    tree = cls(2000)
-    nq = 200
+    tree = cls(CAP)
+    nq = NQ
     col = Collector(tree, nq)
-    for n in (1, 2, 3, 17, 2000):
+    for n in (1, 2, 3, 17, CAP):
         lo, hi = random_boxes(n, rng)
         fill(tree, lo, hi)
         tree.build(n)
@@ -54,9 +58,9 @@ def test_sizes_over_many_levels_and_moves(cls):
     """Extents from 1e-6 to 10 (every octree level occupied, the grid forced coarse), boxes on cell
     borders of the finest levels; then the boxes move and refit() (a rebuild) is exact again."""
     rng = np.random.default_rng(12)
-    n, nq = 1500, 200
-    tree = cls(n)
-    col = Collector(tree, nq, max_hits=n)
+    n, nq = 1500, NQ
+    tree = cls(CAP)
+    col = Collector(tree, nq)  # its MAX_HITS > n: every box fits in a query's list
     c = rng.uniform(-4.0, 1.0, (n, 3))
     c[::7] = np.round(c[::7] * 64.0) / 64.0  # on grid planes
     e = 10.0 ** rng.uniform(-6.0, 1.0, (n, 1)) * rng.uniform(0.0, 1.0, (n, 3))
@@ -76,7 +80,7 @@ def test_sizes_over_many_levels_and_moves(cls):
 def test_f32_parallel_and_reproducible(cls):
     ta.init("cpu", precision="f32")
     rng = np.random.default_rng(13)
-    n, nq = 30_000, 150
+    n, nq = CPU_SERIAL_BELOW, 150  # the smallest capacity whose loops run in parallel
     tree = cls(n)
     col = Collector(tree, nq)
     lo, hi = (a.astype(np.float32) for a in random_boxes(n, rng, scale=100.0, shared=0.0, huge=False))
@@ -93,15 +97,15 @@ def test_f32_parallel_and_reproducible(cls):
 
 
 def test_empty_and_parameter_errors():
-    tree = Octree(3)
-    col = Collector(tree, 1)
+    tree = Octree(CAP)
+    col = Collector(tree, NQ)
     tree.build(0)
     col.boxes(np.full((1, 3), -1e9), np.full((1, 3), 1e9), 1)
     assert col.lists(1) == [set()]
     with pytest.raises(ParameterError, match="capacity"):
         Octree(0)
     with pytest.raises(ParameterError, match="n must"):
-        tree.build(4)
+        tree.build(CAP + 1)
 
 
 def test_automatic_choice_follows_the_cost_model():
