@@ -178,13 +178,15 @@ def validate_mesh(vertices, triangles, *, name="mesh") -> tuple[np.ndarray, np.n
     return verts, tris
 
 
-def load_mesh(mesh, *, name="mesh") -> tuple[np.ndarray, np.ndarray]:
-    """`validate_mesh` of an Open3D TriangleMesh (legacy or tensor), a mesh file, or (vertices, triangles).
+def load_mesh(mesh, *, name="mesh", check=None) -> tuple[np.ndarray, np.ndarray]:
+    """`check(vertices, triangles, name=)` (default `validate_mesh`, the cloth's strict checks) of an
+    Open3D TriangleMesh (legacy or tensor), a mesh file, or (vertices, triangles).
 
     A file is any path Open3D reads (PLY, OBJ, ...); a missing or unreadable one raises ParameterError.
     """
+    check = validate_mesh if check is None else check
     if isinstance(mesh, (tuple, list)) and len(mesh) == 2:
-        return validate_mesh(mesh[0], mesh[1], name=name)
+        return check(mesh[0], mesh[1], name=name)
     if isinstance(mesh, (str, os.PathLike)):
         # The reader in io.export guards against Open3D's silent failures (truncated PLY, OBJ crashes).
         from .io.export import read_triangle_mesh
@@ -195,16 +197,16 @@ def load_mesh(mesh, *, name="mesh") -> tuple[np.ndarray, np.ndarray]:
             raise ParameterError(f"{name}: file not found: {os.fspath(mesh)}") from None
         except ParameterError as exc:
             raise ParameterError(f"{name}: {exc}") from None
-        return validate_mesh(data["vertices"], data["triangles"], name=f"{name} ({os.fspath(mesh)})")
+        return check(data["vertices"], data["triangles"], name=f"{name} ({os.fspath(mesh)})")
     import open3d as o3d
 
     if isinstance(mesh, o3d.geometry.TriangleMesh):
-        return validate_mesh(np.asarray(mesh.vertices), np.asarray(mesh.triangles), name=name)
+        return check(np.asarray(mesh.vertices), np.asarray(mesh.triangles), name=name)
     if isinstance(mesh, o3d.t.geometry.TriangleMesh):
         mesh = mesh.cpu()
         verts = mesh.vertex.positions.numpy() if "positions" in mesh.vertex else np.zeros((0, 3))
         tris = mesh.triangle.indices.numpy() if "indices" in mesh.triangle else np.zeros((0, 3), np.int64)
-        return validate_mesh(verts, tris, name=name)
+        return check(verts, tris, name=name)
     raise ParameterError(
         f"{name}: expected an Open3D TriangleMesh, a file path or (vertices, triangles), got {type(mesh)}"
     )

@@ -27,7 +27,6 @@ thickness; mesh edges against cloth edges are not tested (only particles, i.e. c
 mesh's triangles), so a sharp mesh edge can pass between two cloth vertices.
 """
 
-import os
 import warnings
 
 import numpy as np
@@ -36,6 +35,7 @@ from taichi.lang import impl
 
 from .. import validate
 from ..errors import ParameterError
+from ..geometry import load_mesh
 from ..runtime import data_oriented, np_float
 from ..spatial.bounds import aabb_point_distance_sq, aabb_swept_triangle, fp_epsilon
 from ..spatial.distance import point_triangle_closest, point_triangle_feature
@@ -51,30 +51,8 @@ def mesh_arrays(mesh, name: str = "mesh") -> tuple[np.ndarray, np.ndarray]:
     """(vertices (V, 3) float64, faces (F, 3) int32) of an Open3D TriangleMesh (legacy or tensor), a file
     Open3D reads (PLY keeps vertex order; OBJ renumbers vertices) or a (vertices, faces) pair, checked by
     `spatial.check_mesh` (empty, non-finite, indices out of range, all faces of zero area)."""
-    if isinstance(mesh, (tuple, list)) and len(mesh) == 2:
-        return check_mesh(mesh[0], mesh[1], name=name)
-    if isinstance(mesh, (str, os.PathLike)):
-        from ..io.export import read_triangle_mesh
-
-        try:
-            data = read_triangle_mesh(mesh)
-        except FileNotFoundError:
-            raise ParameterError(f"{name}: file not found: {os.fspath(mesh)}") from None
-        except ParameterError as exc:
-            raise ParameterError(f"{name}: {exc}") from None
-        return check_mesh(data["vertices"], data["triangles"], name=f"{name} ({os.fspath(mesh)})")
-    import open3d as o3d
-
-    if isinstance(mesh, o3d.geometry.TriangleMesh):
-        return check_mesh(np.asarray(mesh.vertices), np.asarray(mesh.triangles), name=name)
-    if isinstance(mesh, o3d.t.geometry.TriangleMesh):
-        mesh = mesh.cpu()
-        verts = mesh.vertex.positions.numpy() if "positions" in mesh.vertex else np.zeros((0, 3))
-        tris = mesh.triangle.indices.numpy() if "indices" in mesh.triangle else np.zeros((0, 3), np.int64)
-        return check_mesh(verts, tris, name=name)
-    raise ParameterError(
-        f"{name}: expected an Open3D TriangleMesh, a file path or (vertices, faces), got {type(mesh)}"
-    )
+    # Looser checks than a cloth's: a collider may have duplicate vertices and some zero-area faces.
+    return load_mesh(mesh, name=name, check=check_mesh)
 
 
 def mesh_topology(vertices, faces) -> tuple[np.ndarray, np.ndarray, bool]:
