@@ -246,18 +246,6 @@ class ColliderMesh:
         return a, b, c
 
     @ti.func
-    def _score(self, p, lo, hi, ret: ti.template()):
-        d2 = aabb_point_distance_sq(lo, hi, p)
-        out = -1.0
-        if d2 <= ret.dist2:
-            out = d2
-        return out
-
-    @ti.func
-    def _bound(self, ret: ti.template()):
-        return ret.dist2
-
-    @ti.func
     def _visit(self, ps, f, ret: ti.template()):
         p = ti.Vector([ps[0], ps[1], ps[2]])
         a, b, c = self._corners(f, ps[3])
@@ -278,7 +266,9 @@ class ColliderMesh:
         if ti.static(self.deforming):
             ret = self._hit_type(dist2=d * d, face=-1, w=w)
             ps = ti.Vector([p[0], p[1], p[2], s], float)
-            self.mesh.bvh.traverse_nearest(ps, p, self._score, self._bound, self._visit, ret)
+            self.mesh.bvh.traverse_nearest(
+                ps, p, self.mesh.score_closest, self.mesh.bound_closest, self._visit, ret
+            )
             d, face, w = ti.sqrt(ret.dist2), ret.face, ret.w
         else:
             d, face, w = self.mesh.closest_point(p, max_dist)

@@ -238,7 +238,9 @@ class TriangleMesh:
     # Taichi scope
 
     @ti.func
-    def _score_closest(self, p, lo, hi, ret: ti.template()):
+    def score_closest(self, p, lo, hi, ret: ti.template()):
+        """Nearest-first order for closest-point searches: a box's squared distance to p, < 0 past the
+        best found (ret.dist2)."""
         d2 = aabb_point_distance_sq(lo, hi, p)
         out = -1.0
         if d2 <= ret.dist2:
@@ -246,7 +248,7 @@ class TriangleMesh:
         return out
 
     @ti.func
-    def _bound_closest(self, ret: ti.template()):
+    def bound_closest(self, ret: ti.template()):
         return ret.dist2
 
     @ti.func
@@ -272,7 +274,7 @@ class TriangleMesh:
         ret = self._types.ClosestHit(
             dist2=ti.cast(max_dist, float) ** 2, face=-1, w=ti.Vector([0.0, 0.0, 0.0], float)
         )
-        self.bvh.traverse_nearest(p_, p_, self._score_closest, self._bound_closest, self._visit_closest, ret)
+        self.bvh.traverse_nearest(p_, p_, self.score_closest, self.bound_closest, self._visit_closest, ret)
         return ti.sqrt(ret.dist2), ret.face, ret.w
 
     @ti.func
