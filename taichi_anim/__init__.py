@@ -11,7 +11,16 @@ from .builder import Builder
 from .cloth import Cloth, ClothMaterial, FabricMaterial
 from .collision import CollisionMode, RigidMotion
 from .collision.neighbors import NeighborMethod, make_neighbor_search
-from .errors import DivergenceError, ParameterError
+from .errors import (
+    ConvergenceError,
+    DivergenceError,
+    OutputError,
+    ParameterError,
+    SolverWarning,
+    StabilityError,
+    StabilityWarning,
+)
+from .health import Health, Policy
 from .integrators import (
     INTEGRATORS,
     Integrator,
@@ -52,6 +61,13 @@ from .terms import (
 __version__ = "0.1.0"
 
 __all__ = [
+    "ConvergenceError",
+    "Health",
+    "OutputError",
+    "Policy",
+    "SolverWarning",
+    "StabilityError",
+    "StabilityWarning",
     "AeroTriangles",
     "AnchorSpring",
     "BendingDihedral",

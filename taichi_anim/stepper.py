@@ -11,6 +11,7 @@ from .collision.motion import follow_attachments
 from .collision.self_contact import SelfContact
 from .collision.spheres import ContactSpheres
 from .errors import ParameterError
+from .health import Health
 
 
 @ti.func
@@ -41,6 +42,9 @@ class Stepper:
         self.model = model
         self.integrator = integrator
         integrator.bind(model)
+        # What the run does when a solver misbehaves, and what it has reported so far (health.py).
+        self.policy = integrator.policy
+        self.health = Health(self.policy)
         # The sphere-contact solver (its neighbour grid, predictions and sweep buffers), when the scene
         # has sphere contacts.
         opts = model.sphere_contacts
@@ -76,9 +80,14 @@ class Stepper:
         state.time += dt
         state.step_count += 1
         if state.step_count % method.check_every == 0:
-            state.check_finite()
-            if self.self_contact is not None:
-                self.self_contact.read_stats()
+            self.check(state)
+
+    def check(self, state) -> None:
+        """Read the divergence watch now (a device sync): raises DivergenceError if a step so far
+        diverged. The runner calls it before exporting a frame, so nothing after a bad step is written."""
+        state.check_finite()
+        if self.self_contact is not None:
+            self.self_contact.read_stats()
 
     def _advance(self, state, h: float, contacts=None) -> None:
         """The method's step by h, sphere contacts, then cloth self-contact on the result (last: nothing

@@ -16,6 +16,7 @@ import taichi as ti
 
 from .. import validate
 from ..collision import CollisionMode
+from ..health import make_policy
 from ..runtime import data_oriented
 from ..stepper import Stepper, finish_particle
 
@@ -30,7 +31,8 @@ def _mode(value) -> CollisionMode:
 @data_oriented
 class Integrator:
     """Base class. Options: collision_mode ("projection" | "backward"); check_every: read the
-    divergence counter every this many steps (each read synchronises with the device)."""
+    divergence counter every this many steps (each read synchronises with the device); policy: what the
+    run does on non-convergence, instability and divergence (health.Policy, or a dict of its fields)."""
 
     name = "base"
     order = 0
@@ -39,9 +41,14 @@ class Integrator:
     own_caches = True  # False for wrappers whose inner method evaluates the terms
 
     def __init__(
-        self, *, collision_mode: CollisionMode | str = CollisionMode.PROJECTION, check_every: int = 1
+        self,
+        *,
+        collision_mode: CollisionMode | str = CollisionMode.PROJECTION,
+        check_every: int = 1,
+        policy=None,
     ):
         self.collision_mode = _mode(collision_mode)
+        self.policy = make_policy(policy)
         self.check_every = validate.count("check_every", check_every, 1)
         self.evaluations = 0  # force evaluations per particle so far (the cost figure in benchmarks)
         self.model = None
