@@ -5,7 +5,7 @@ Newton separates `solver.step(...)` from its collision pipeline the same way."""
 
 import taichi as ti
 
-from . import validate
+from . import stability, validate
 from .collision import collide
 from .collision.motion import follow_attachments
 from .collision.self_contact import SelfContact
@@ -45,6 +45,8 @@ class Stepper:
         # What the run does when a solver misbehaves, and what it has reported so far (health.py).
         self.policy = integrator.policy
         self.health = Health(self.policy)
+        integrator.health = self.health  # solvers inside the method report here
+        self._guarded_dt = None  # the step the stability guard last checked
         # The sphere-contact solver (its neighbour grid, predictions and sweep buffers), when the scene
         # has sphere contacts.
         opts = model.sphere_contacts
@@ -58,6 +60,9 @@ class Stepper:
         model, method = self.model, self.integrator
         if state.model is not model:
             raise ParameterError("state belongs to another model: make it with this model's state()")
+        if dt != self._guarded_dt:
+            stability.guard(self, state, dt)
+            self._guarded_dt = dt
         if model.emitter_count:
             model.emit(state, dt)
         contacts = self.contacts

@@ -16,7 +16,7 @@ import taichi as ti
 
 from .. import validate
 from ..collision import CollisionMode
-from ..health import make_policy
+from ..health import Health, make_policy
 from ..runtime import data_oriented
 from ..stepper import Stepper, finish_particle
 
@@ -49,6 +49,7 @@ class Integrator:
     ):
         self.collision_mode = _mode(collision_mode)
         self.policy = make_policy(policy)
+        self.health = Health(self.policy)  # replaced by the Stepper's when one binds this integrator
         self.check_every = validate.count("check_every", check_every, 1)
         self.evaluations = 0  # force evaluations per particle so far (the cost figure in benchmarks)
         self.model = None
