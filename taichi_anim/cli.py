@@ -1,11 +1,22 @@
-"""Command line: `taichi-anim demo [NAME] --frames N --out DIR [--arch cpu|gpu|auto] [--seed S]`."""
+"""Command line: `taichi-anim demo [NAME] --frames N --out DIR [--arch cpu|gpu|auto] [--seed S]`.
+
+Exit codes: 0 the run completed; 2 a bad parameter, or a backend or viewer that is not available here
+(argparse's own usage errors are 2 as well); 3 output could not be written (disk full, no permission,
+`--out` is a file); 4 the simulation stopped (diverged, or a solver failed or a step was unstable under
+a "raise" policy); 130 interrupted (Ctrl-C). Each failure prints one line on stderr, and run.json in the
+output folder records it (status "failed" or "diverged")."""
 
 import argparse
 import sys
 
 from . import runtime
-from .errors import DivergenceError, ParameterError
+from .errors import ConvergenceError, DivergenceError, OutputError, ParameterError, StabilityError
 from .integrators import INTEGRATORS
+
+EXIT_PARAMETER = 2
+EXIT_OUTPUT = 3
+EXIT_SIMULATION = 4
+EXIT_INTERRUPTED = 130
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -13,11 +24,20 @@ def _parser() -> argparse.ArgumentParser:
 
     p = argparse.ArgumentParser(prog="taichi-anim", description="taichi_anim: particle and cloth animation")
     sub = p.add_subparsers(dest="command")
-    d = sub.add_parser("demo", help=f"run a demo scene (default: {DEFAULT_SCENE})")
+    d = sub.add_parser(
+        "demo",
+        help=f"run a demo scene (default: {DEFAULT_SCENE})",
+        epilog="exit codes: 0 complete, 2 bad parameter or unavailable backend, 3 output not written, "
+        "4 simulation stopped (diverged or failed under a raise policy), 130 interrupted",
+    )
     d.add_argument("name", nargs="?", default=DEFAULT_SCENE, help="demo to run (see --list)")
     d.add_argument("--list", action="store_true", help="list the demos and exit")
     d.add_argument("--frames", type=int, default=None, help="frames to simulate (default: the scene's own)")
-    d.add_argument("--out", default=None, help="output directory (default out/NAME)")
+    d.add_argument(
+        "--out",
+        default=None,
+        help="output folder (default out/NAME); the previous run's files there are replaced, others kept",
+    )
     d.add_argument("--arch", choices=runtime.ARCHS, default="cpu", help="Taichi backend (default cpu)")
     d.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     d.add_argument("--integrator", choices=sorted(INTEGRATORS), default=None, help="override the integrator")
@@ -34,6 +54,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _demo(args) -> int:
+    from .io.manifest import check_output_folder
     from .scenes import describe, make_scene
     from .scenes.runner import run_scene, summary_line
 
@@ -43,6 +64,8 @@ def _demo(args) -> int:
         return 0
     if args.frames is not None and args.frames < 1:
         raise ParameterError(f"--frames must be >= 1, got {args.frames}")
+    out = args.out or f"out/{args.name}"
+    check_output_folder(out)  # before the backend starts and the scene compiles; creates nothing
     viewer = None
     if args.view:
         from .viewer import ViewerUnavailable, vulkan_problem
@@ -76,7 +99,6 @@ def _demo(args) -> int:
         except ViewerUnavailable as e:
             print(f"taichi-anim: --view is not possible here: {e}", file=sys.stderr)
             return 2
-    out = args.out or f"out/{args.name}"
     summary = run_scene(
         scene,
         frames=args.frames or scene.frames,
@@ -98,9 +120,21 @@ def main(argv=None) -> int:
         args = _parser().parse_args(["demo", *(argv or [])])
     try:
         return _demo(args)
-    except (ParameterError, DivergenceError) as e:
-        print(f"taichi-anim: error: {e}", file=sys.stderr)
-        return 2
+    except ParameterError as e:
+        return _fail(e, EXIT_PARAMETER)
+    except OutputError as e:
+        return _fail(e, EXIT_OUTPUT)
+    except (DivergenceError, ConvergenceError, StabilityError) as e:
+        return _fail(e, EXIT_SIMULATION)
+    except KeyboardInterrupt:
+        print("taichi-anim: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def _fail(error: BaseException, code: int) -> int:
+    message = " ".join(str(error).split())  # one line, whatever the message holds
+    print(f"taichi-anim: error: {message}", file=sys.stderr)
+    return code
 
 
 if __name__ == "__main__":

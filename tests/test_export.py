@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from taichi_anim.errors import ParameterError
+from taichi_anim.errors import OutputError, ParameterError
 from taichi_anim.io.export import (
     area_weighted_normals,
     frame_path,
@@ -382,12 +382,12 @@ def test_failed_write_keeps_the_previous_version(tmp_path, monkeypatch, rng):
     write_point_cloud(tmp_path / "p.ply", old)
     before = (tmp_path / "p.ply").read_bytes()
     monkeypatch.setattr(o3d.t.io, "write_point_cloud", lambda *a, **k: False)  # Open3D's way to fail
-    with pytest.raises(OSError, match="could not write"):
+    with pytest.raises(OutputError, match="could not write"):
         write_point_cloud(tmp_path / "p.ply", rng.random((4, 3)))
     assert (tmp_path / "p.ply").read_bytes() == before and listing(tmp_path) == ["p.ply"]
     # "Success" with nothing written is a failure too.
     monkeypatch.setattr(o3d.t.io, "write_point_cloud", lambda path, *a, **k: Path(path).touch() or True)
-    with pytest.raises(OSError, match="no data"):
+    with pytest.raises(OutputError, match="no data"):
         write_point_cloud(tmp_path / "p.ply", rng.random((4, 3)))
     np.testing.assert_array_equal(read_point_cloud(tmp_path / "p.ply")["points"], old)
     assert listing(tmp_path) == ["p.ply"]

@@ -1,18 +1,23 @@
-"""Open3D export of point clouds, triangle meshes and line sets, each written atomically, and reading back."""
+"""Open3D export of point clouds, triangle meshes and line sets, each published atomically and verified
+complete (atomic.py), and reading back; frame file names for sequences."""
 
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import os
 import re
-import secrets
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
 from .. import validate
-from ..errors import ParameterError
+from ..errors import OutputError, ParameterError
+from .atomic import atomic_path, check_complete, ply_layout, text_rows_problem
+
+__all__ = ["atomic_path"]  # re-exported: renderers and viewers publish through it too
 
 POINT_CLOUD_FORMATS = ("ply", "pcd", "xyz")
 TRIANGLE_MESH_FORMATS = ("ply", "obj")
@@ -34,10 +39,36 @@ _ATTRIBUTE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 # ----------------------------------------------------------------------------------------------- paths
 
 
-def frame_path(out_dir: str | os.PathLike, name: str, frame: int, ext: str = "ply") -> Path:
+MIN_FRAME_DIGITS = 4
+# Digits of frame numbers while a run with a known frame count exports (see frame_numbering).
+_FRAME_DIGITS: contextvars.ContextVar[int] = contextvars.ContextVar("frame_digits", default=MIN_FRAME_DIGITS)
+
+
+def frame_digits(frames: int) -> int:
+    """Digits for the frame numbers 0 .. frames-1: at least 4, enough for the last one (10001 frames: 5)."""
+    frames = validate.count("frames", frames, 1)
+    return max(MIN_FRAME_DIGITS, len(str(frames - 1)))
+
+
+@contextlib.contextmanager
+def frame_numbering(frames: int) -> Iterator[int]:
+    """Within the block, frame_path pads frame numbers to frame_digits(frames), so every name of a run
+    of `frames` frames has the same width and names sort in frame order; yields the width."""
+    token = _FRAME_DIGITS.set(frame_digits(frames))
+    try:
+        yield _FRAME_DIGITS.get()
+    finally:
+        _FRAME_DIGITS.reset(token)
+
+
+def frame_path(
+    out_dir: str | os.PathLike, name: str, frame: int, ext: str = "ply", *, frames: int | None = None
+) -> Path:
     """Path of frame `frame` of sequence `name`: `<out_dir>/<name>_0042.<ext>`.
 
-    The frame number is zero-padded to 4 digits (more when frame >= 10000), so names sort in frame order.
+    The frame number is zero-padded to frame_digits(frames) digits when `frames` (the run's frame count)
+    is given, else to the width set by an enclosing frame_numbering (4 outside one), so the names of a
+    run sort in frame order. A number wider than the padding is written in full.
     """
     if isinstance(frame, bool) or not isinstance(frame, (int, np.integer)) or frame < 0:
         raise ParameterError(f"frame must be an integer >= 0, got {frame!r}")
@@ -46,41 +77,51 @@ def frame_path(out_dir: str | os.PathLike, name: str, frame: int, ext: str = "pl
     ext = ext.lstrip(".")
     if not ext:
         raise ParameterError("ext must be a non-empty extension such as 'ply'")
-    return Path(out_dir) / f"{name}_{int(frame):04d}.{ext}"
+    if frames is None:
+        digits = _FRAME_DIGITS.get()
+    else:
+        digits = frame_digits(frames)
+        if frame >= frames:
+            raise ParameterError(f"frame must be < frames ({frames}), got {frame}")
+    return Path(out_dir) / f"{name}_{int(frame):0{digits}d}.{ext}"
 
 
 @contextlib.contextmanager
-def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside `path`; on success move it onto `path`, on any error delete it.
-
-    Readers (a viewer polling the output folder, Blender importing a sequence) then never see a half-written
-    file, and a crash leaves the previous version in place. The temporary name keeps the extension
-    (`.name.tmp-1a2b3c4d.ply`) because Open3D and image writers choose the format from it. The parent
-    folder is created if missing.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    # A random name instead of mkstemp: mkstemp creates the file with mode 0600, which os.replace would
-    # carry over to the result; a fresh file gets the usual umask permissions.
-    while True:
-        tmp = path.with_name(f".{path.stem}.tmp-{secrets.token_hex(4)}{path.suffix}")
-        if not tmp.exists():
-            break
+def _c_stderr_to_null() -> Iterator[None]:
+    """Silence C-level writes to stderr (RPly prints one line per failed value on a full disk); our own
+    completeness check reports the failure in one message instead."""
     try:
-        yield tmp
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
-        raise
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):  # no real stderr (embedded interpreters)
+        yield
+        return
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(null, 2)
+        finally:
+            os.close(null)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
-def _check_written(ok: bool, tmp: Path, path: Path, what: str) -> None:
-    # Open3D reports failure by returning False and printing a warning, never by raising.
+def _check_written(ok: bool, tmp: Path, path: Path, what: str, rows: dict[bytes, int] | None = None) -> None:
+    """Open3D reports failure by returning False and printing a warning, never by raising, and its PLY and
+    OBJ writers report success for a file cut short by a full disk. Headers are checked by atomic_path;
+    header-less text formats against the `rows` they must hold (first word -> line count)."""
     if not ok:
-        raise OSError(f"Open3D could not write the {what} to {path}")
+        raise OutputError(f"cannot write {path}: Open3D could not write the {what} (disk full? read-only?)")
     if not tmp.exists() or tmp.stat().st_size == 0:
-        raise OSError(f"Open3D reported success but wrote no data for the {what} to {path}")
+        raise OutputError(f"cannot write {path}: Open3D reported success but wrote no data for the {what}")
+    reason = None if rows is None else text_rows_problem(tmp, rows)
+    if reason is not None:
+        raise OutputError(
+            f"cannot write {path}: the written {what} is incomplete ({reason}); the disk may be full or a "
+            "file size limit reached"
+        )
 
 
 def _format(path: Path, formats: tuple[str, ...], what: str) -> str:
@@ -150,89 +191,12 @@ def _write_empty_ply(path: Path, elements: list[tuple[str, list[str]]]) -> None:
     path.write_text("\n".join(lines) + "\n", encoding="ascii")
 
 
-_PLY_SIZES = {"char": 1, "uchar": 1, "short": 2, "ushort": 2, "int": 4, "uint": 4, "float": 4, "double": 8}
-_PLY_SIZES.update(int8=1, uint8=1, int16=2, uint16=2, int32=4, uint32=4, float32=4, float64=8)
-
-
-def _ply_layout(path: Path) -> tuple[str, int, list] | None:
-    """(format, offset of the data, [(element, count, [(property, type or ("list", count_t, item_t))])])
-    from a PLY header, or None if the file is not PLY."""
-    with open(path, "rb") as f:
-        head = f.read(1 << 16)
-    end = head.find(b"end_header")
-    if not head.startswith(b"ply") or end < 0:
-        return None
-    data_start = head.index(b"\n", end) + 1 if b"\n" in head[end:] else len(head)
-    fmt, elements = "", []
-    for line in head[:end].decode("ascii", "replace").splitlines():
-        parts = line.split()
-        try:
-            if parts[:1] == ["format"]:
-                fmt = parts[1]
-            elif parts[:1] == ["element"]:
-                elements.append((parts[1], int(parts[2]), []))
-            elif parts[:1] == ["property"] and elements:
-                kind = ("list", parts[2], parts[3]) if parts[1] == "list" else parts[1]
-                elements[-1][2].append((parts[-1], kind))
-        except (IndexError, ValueError):
-            return None
-    return fmt, data_start, elements
-
-
 def _ply_header(path: Path) -> dict[str, list] | None:
     """{element: [count, [property names]]} from a PLY header, or None if the file is not PLY."""
-    layout = _ply_layout(path)
+    layout = ply_layout(path)
     if layout is None:
         return None
     return {name: [count, [p for p, _ in props]] for name, count, props in layout[2]}
-
-
-def _ply_check_complete(path: Path, what: str) -> None:
-    """Raise if a PLY file holds less data than its header announces.
-
-    Open3D reads a truncated PLY (an interrupted copy, a full disk) with only a printed warning and
-    returns the rows it got, or for the tensor reader uninitialised memory, so we compare sizes first.
-    """
-    layout = _ply_layout(path)
-    if layout is None:
-        raise ParameterError(f"{path} has no valid PLY header, so it is not a readable {what}")
-    fmt, offset, elements = layout
-    size = path.stat().st_size
-    if fmt == "ascii":
-        with open(path, "rb") as f:
-            f.seek(offset)
-            rows = sum(1 for line in f if line.strip())
-        needed = sum(count for _, count, _ in elements)
-        if rows < needed:
-            raise ParameterError(f"{path} is truncated: its header announces {needed} rows, it holds {rows}")
-        return
-    expected = offset
-    with open(path, "rb") as f:
-        for name, count, props in elements:
-            lists = [k for _, k in props if isinstance(k, tuple)]
-            try:
-                fixed = sum(_PLY_SIZES[k] for _, k in props if not isinstance(k, tuple))
-            except KeyError:
-                return  # an unusual type: leave the judgement to Open3D
-            if not lists:
-                expected += count * fixed
-                continue
-            if len(lists) > 1 or count == 0 or props[0][1] != lists[0]:
-                return  # layouts we do not write; checking them would need a row-by-row walk
-            # Meshes store one `list uchar int` per face; all triangles have the same length.
-            _, count_t, item_t = lists[0]
-            f.seek(expected)
-            first = f.read(_PLY_SIZES[count_t])
-            if len(first) < _PLY_SIZES[count_t]:
-                raise ParameterError(f"{path} is truncated: its data ends before element {name!r}")
-            order = "little" if fmt == "binary_little_endian" else "big"
-            length = int.from_bytes(first, order)
-            expected += count * (_PLY_SIZES[count_t] + length * _PLY_SIZES[item_t] + fixed)
-    if size < expected:
-        raise ParameterError(
-            f"{path} is truncated: its header announces {expected - offset} bytes of data, "
-            f"it holds {size - offset}"
-        )
 
 
 def _pcd_point_count(path: Path) -> int | None:
@@ -296,15 +260,17 @@ def write_point_cloud(
         if fmt == "xyz":
             # The tensor XYZ writer fails on float64 positions (Open3D 0.20): use the legacy one.
             legacy = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pos.astype(np.float64)))
-            ok = o3d.io.write_point_cloud(str(tmp), legacy, print_progress=False)
+            with _c_stderr_to_null():
+                ok = o3d.io.write_point_cloud(str(tmp), legacy, print_progress=False)
         else:
             cloud = o3d.t.geometry.PointCloud(o3d.core.Tensor(pos))
             if rgb is not None:
                 cloud.point.colors = o3d.core.Tensor(np.round(rgb * 255.0).astype(np.uint8))
             for name, a in columns.items():
                 cloud.point[name] = o3d.core.Tensor(a)
-            ok = o3d.t.io.write_point_cloud(str(tmp), cloud, print_progress=False)
-        _check_written(ok, tmp, path, "point cloud")
+            with _c_stderr_to_null():
+                ok = o3d.t.io.write_point_cloud(str(tmp), cloud, print_progress=False)
+        _check_written(ok, tmp, path, "point cloud", {b"": n} if fmt == "xyz" else None)
     return path
 
 
@@ -333,9 +299,8 @@ def _existing(path, what: str) -> Path:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}")
-    if path.suffix.lower() == ".ply":
-        # Check the header and size ourselves: Open3D prints a complaint and returns partial data.
-        _ply_check_complete(path, what)
+    # Check headers against sizes ourselves: Open3D prints a complaint and returns partial data.
+    check_complete(path, what)
     return path
 
 
@@ -484,15 +449,16 @@ def write_triangle_mesh(
             mesh.vertex_normals = o3d.utility.Vector3dVector(normals)
         if rgb is not None:
             mesh.vertex_colors = o3d.utility.Vector3dVector(rgb)
-        ok = o3d.io.write_triangle_mesh(
-            str(tmp),
-            mesh,
-            write_vertex_normals=normals is not None,
-            write_vertex_colors=rgb is not None,
-            write_triangle_uvs=False,  # no UVs, so Open3D writes no .mtl named after the temporary file
-            print_progress=False,
-        )
-        _check_written(ok, tmp, path, "triangle mesh")
+        with _c_stderr_to_null():
+            ok = o3d.io.write_triangle_mesh(
+                str(tmp),
+                mesh,
+                write_vertex_normals=normals is not None,
+                write_vertex_colors=rgb is not None,
+                write_triangle_uvs=False,  # no UVs, so Open3D writes no .mtl named after the temporary file
+                print_progress=False,
+            )
+        _check_written(ok, tmp, path, "triangle mesh", {b"v": nv, b"f": len(f)} if fmt == "obj" else None)
     return path
 
 
@@ -601,7 +567,8 @@ def write_line_set(path: str | os.PathLike, points, lines, colors=None) -> Path:
         ls = o3d.geometry.LineSet(o3d.utility.Vector3dVector(p), o3d.utility.Vector2iVector(seg))
         if rgb is not None:
             ls.colors = o3d.utility.Vector3dVector(rgb)
-        ok = o3d.io.write_line_set(str(tmp), ls, print_progress=False)
+        with _c_stderr_to_null():
+            ok = o3d.io.write_line_set(str(tmp), ls, print_progress=False)
         _check_written(ok, tmp, path, "line set")
     return path
 

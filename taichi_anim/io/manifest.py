@@ -1,4 +1,20 @@
-"""Run manifest: `run.json` with the settings, timings and software/hardware environment of a run."""
+"""Run manifest and run folder: `run.json` with the status, settings, timings, health, files and
+software/hardware environment of a run, and the rule that keeps an output folder consistent.
+
+Folder policy: a run owns its output folder, and re-running into the same folder replaces the previous
+run's output, as a simulation cache does in Blender or Houdini. When a run starts (prepare_run_folder) it
+removes what the previous run wrote there: every file its run.json lists, plus the frame files named
+after the previous and the current scene (`NAME_0042.ply`, `NAME_trails_0042.ply`, `NAME_last.png`, ...:
+a run killed before its final run.json listed nothing) and the hidden temporaries killed runs leave.
+Other files (a user's notes, other scenes' caches) are never touched. A fresh folder per run would keep
+old runs, but then every consumer (a Blender import, a viewer) must be pointed at a new folder each
+time; keeping old runs is a matter of choosing another `--out`.
+
+run.json is written (atomically) when the run starts, with status "running", and rewritten at the end
+with "complete", "diverged" (DivergenceError: the step, particle, quantity and value under "error") or
+"failed" (any other exception, also an interrupt or an output error), and lists every file the run
+wrote with its size [bytes] and SHA-256. A status still "running" means the run was killed.
+"""
 
 from __future__ import annotations
 
@@ -9,15 +25,21 @@ import json
 import math
 import os
 import platform
+import re
 import sys
+from collections.abc import Iterable
 from importlib import metadata
 from pathlib import Path, PurePath
 
 import numpy as np
 
-from .export import atomic_path
+from ..errors import OutputError
+from .atomic import atomic_path, file_record, output_error, remove_stale_temporaries
 
 MANIFEST_NAME = "run.json"
+SCHEMA = 2
+STATUSES = ("running", "complete", "diverged", "failed")
+FRAME_EXTENSIONS = ("ply", "obj", "pcd", "xyz")
 # Distribution names per reported package; open3d-cpu is the same `import open3d` (see pyproject.toml).
 _DISTRIBUTIONS = {
     "taichi": ("taichi",),
@@ -131,26 +153,49 @@ def _taichi_state() -> dict:
 
 
 def write_manifest(
-    out_dir: str | os.PathLike, settings: dict, timings: dict, *, name: str = MANIFEST_NAME
+    out_dir: str | os.PathLike,
+    settings: dict,
+    timings: dict,
+    *,
+    status: str = "complete",
+    files: Iterable = (),
+    health: dict | None = None,
+    error: dict | None = None,
+    name: str = MANIFEST_NAME,
 ) -> Path:
     """Write `<out_dir>/run.json` atomically and return its path.
 
     settings: what the run was asked to do (scene, resolution, dt [s], solver options, ...);
     timings: what it measured (seconds, steps per second, compile time [s], ...). Values may be NumPy
-    scalars or arrays, tuples, Enums, dataclasses or paths; see `jsonable`. The file also records
+    scalars or arrays, tuples, Enums, dataclasses or paths; see `jsonable`. status: one of STATUSES;
+    files: what the run wrote, as file_record dicts or paths (recorded now); health: the run's
+    Health.to_dict(); error: what stopped the run (see error_record). The file also records
     `environment()` and a `schema` version.
     """
+    if status not in STATUSES:
+        raise ValueError(f"status must be one of {STATUSES}, got {status!r}")
+    out = Path(out_dir)
     doc = {
-        "schema": 1,
+        "schema": SCHEMA,
+        "status": status,
         "settings": jsonable(settings),
         "timings": jsonable(timings),
+        "health": jsonable(health),
+        "error": jsonable(error),
+        "files": _unique_files(f if isinstance(f, dict) else file_record(f, out) for f in files),
         "environment": environment(),
     }
     text = json.dumps(doc, indent=2, allow_nan=False, sort_keys=False) + "\n"
-    path = Path(out_dir) / name
+    path = out / name
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return path
+
+
+def _unique_files(records) -> list[dict]:
+    # A file written twice by one run is listed once, as it is now.
+    last = {r["path"]: r for r in records}
+    return list(last.values())
 
 
 def read_manifest(path: str | os.PathLike) -> dict:
@@ -159,3 +204,80 @@ def read_manifest(path: str | os.PathLike) -> dict:
     if path.is_dir():
         path = path / MANIFEST_NAME
     return json.loads(path.read_text(encoding="utf-8"))
+
+
+def error_record(error: BaseException) -> dict:
+    """What stopped a run: {"type", "message"}, plus "step", "particle", "quantity", "value" for a
+    DivergenceError (None where not known)."""
+    doc = {"type": type(error).__name__, "message": str(error)}
+    for key in ("step", "particle", "quantity", "value"):
+        if hasattr(error, key):
+            doc[key] = getattr(error, key)
+    return doc
+
+
+# ------------------------------------------------------------------------------------------ run folder
+
+
+def frame_file_pattern(name: str) -> re.Pattern:
+    """The names a scene `name` writes: `name_NNNN.ext` and `name_word_NNNN.ext` (4 or more digits,
+    ext in FRAME_EXTENSIONS) and the picture `name_last.png`."""
+    stem = re.escape(name)
+    ext = "|".join(FRAME_EXTENSIONS)
+    return re.compile(rf"{stem}(?:_[a-z]+)?_\d{{4,}}\.(?:{ext})|{stem}_last\.png")
+
+
+def check_output_folder(out_dir: str | os.PathLike) -> Path:
+    """Raise OutputError unless `out_dir` is a writable folder or can be created as one (nothing is
+    created here, so a run that fails later for another reason leaves no empty folder behind)."""
+    out = Path(out_dir)
+    probe = out
+    while not probe.exists() and probe != probe.parent:
+        if probe.is_symlink():  # a dangling link: mkdir would fail on it
+            raise OutputError(f"cannot write to {out}: {probe} is a broken symbolic link")
+        probe = probe.parent
+    if not probe.is_dir():
+        what = "the output folder" if probe == out else f"{probe}, on the way to it,"
+        raise OutputError(f"cannot write to {out}: {what} is a file, not a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise OutputError(f"cannot write to {out}: permission denied ({probe} is read-only)")
+    return out
+
+
+def prepare_run_folder(out_dir: str | os.PathLike, *, names: Iterable[str] = ()) -> list[Path]:
+    """Make `out_dir` ready for a new run of the scenes `names` (created if missing) and return the
+    files removed: stale temporaries, every file the previous run.json lists, and the frame files of
+    the previous run's scene and of `names` (frame_file_pattern). See the module docstring for why."""
+    out = check_output_folder(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise output_error(out, e) from e
+    removed = remove_stale_temporaries(out)
+    listed, names = set(), set(names)
+    try:
+        previous = read_manifest(out / MANIFEST_NAME)
+    except (OSError, ValueError):  # none, or unreadable: the name patterns still apply
+        previous = {}
+    if isinstance(previous, dict):
+        for entry in previous.get("files") or ():
+            rel = entry.get("path") if isinstance(entry, dict) else None
+            # Only plain names inside this folder: a tampered run.json must not reach elsewhere.
+            if isinstance(rel, str) and rel and Path(rel).name == rel and rel not in (".", ".."):
+                listed.add(rel)
+        scene = (previous.get("settings") or {}).get("scene")
+        if isinstance(scene, str) and scene:
+            names.add(scene)
+    patterns = [frame_file_pattern(n) for n in sorted(names)]
+    for entry in sorted(out.iterdir()):
+        if entry.name == MANIFEST_NAME or not (entry.is_file() or entry.is_symlink()):
+            continue
+        if entry.name in listed or any(p.fullmatch(entry.name) for p in patterns):
+            try:
+                entry.unlink()
+            except FileNotFoundError:
+                continue
+            except OSError as e:
+                raise output_error(entry, e) from e
+            removed.append(entry)
+    return removed

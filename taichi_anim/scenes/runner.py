@@ -1,5 +1,11 @@
 """Run a scene for N frames: step, export each frame atomically, render the last one, write run.json.
 
+The output folder follows io/manifest.py's policy: the previous run's files there are removed first,
+run.json says "running" while the run goes on and "complete", "diverged" or "failed" after it, with every
+file written (size and SHA-256) and the run's health (solver, stability and divergence reports). The
+divergence watch is read before each frame is exported, so with `check_every` > 1 no frame after a
+bad step is written.
+
 Timings: the first step runs alone (it includes JIT compilation, reported as compile_s = first step
 minus a steady step); step time is measured with `ti.sync()` before every clock read and kept apart
 from export and render time."""
@@ -10,7 +16,11 @@ from pathlib import Path
 import numpy as np
 import taichi as ti
 
-from ..io.manifest import write_manifest
+from .. import validate
+from ..errors import DivergenceError, OutputError
+from ..io.atomic import recording_files
+from ..io.export import frame_numbering
+from ..io.manifest import error_record, prepare_run_folder, write_manifest
 from ..runtime import backend_name
 from .base import Scene
 
@@ -25,76 +35,141 @@ def run_scene(
     viewer=None,
     extra_settings: dict | None = None,
 ) -> dict:
-    """Simulate `frames` frames of `scene`; return the summary (also written to out_dir/run.json)."""
+    """Simulate `frames` frames of `scene`; return the summary (also written to out_dir/run.json).
+
+    Raises what stopped the run (DivergenceError, OutputError, ...) after recording it in run.json."""
     from tqdm import tqdm
 
+    frames = validate.count("frames", frames, 1)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    removed = prepare_run_folder(out, names=[scene.name])
+    stepper = scene.integrator.stepper_for(scene.model)
+    settings = {**scene.settings(), "frames": frames, "export": export, **(extra_settings or {})}
+    write_manifest(out, settings, {}, status="running", health=stepper.health.to_dict())
+    run = {"step_times": [], "first_step_s": None, "export_s": 0.0, "render_s": 0.0, "frames_done": 0}
+    files: list[dict] = []  # what the run published, in order (see recording_files)
+    status, failure = "failed", None
+    try:
+        with recording_files(out) as files:
+            _simulate(scene, stepper, frames, out, export, progress, viewer, run, tqdm)
+        status = "complete"
+    except DivergenceError as e:
+        status, failure = "diverged", e
+        raise
+    except BaseException as e:
+        failure = e
+        raise
+    finally:
+        summary = _summary(scene, stepper, out, frames, run, files, status == "complete")
+        summary["status"] = status
+        summary["files_removed"] = len(removed)
+        try:
+            timings = {k: v for k, v in summary.items() if k != "health"}
+            summary["manifest"] = str(
+                write_manifest(
+                    out,
+                    settings,
+                    timings,
+                    status=status,
+                    files=files,
+                    health=summary["health"],
+                    error=None if failure is None else error_record(failure),
+                )
+            )
+        except OutputError as e:
+            if failure is None:
+                raise
+            # Keep the original error; the run.json left behind says "running", i.e. not complete.
+            failure.add_note(f"run.json could not be updated: {e}")
+    return summary
+
+
+def _simulate(scene, stepper, frames, out, export, progress, viewer, run, tqdm) -> None:
     model, state, integ = scene.model, scene.state, scene.integrator
-    step_times: list[float] = []
-    export_s = 0.0
-    files = 0
-    first_step_s = None
     bar = tqdm(range(frames), desc=scene.name, unit="frame", disable=not progress, leave=False)
-    for frame in bar:
-        for _ in range(scene.substeps):
-            ti.sync()
-            t0 = time.perf_counter()
-            integ.step(model, state, scene.dt)
-            ti.sync()
-            dt_wall = time.perf_counter() - t0
-            if first_step_s is None:
-                first_step_s = dt_wall
-            else:
-                step_times.append(dt_wall)
-        if export:
-            t0 = time.perf_counter()
-            files += len(scene.export_frame(out, frame))
-            export_s += time.perf_counter() - t0
-        if viewer is not None:
-            snap = state.snapshot()
-            if not viewer.draw(snap.x, snap.color, scene.point_radius):
-                break
-    bar.close()
+    try:
+        with frame_numbering(frames):
+            for frame in bar:
+                for _ in range(scene.substeps):
+                    ti.sync()
+                    t0 = time.perf_counter()
+                    integ.step(model, state, scene.dt)
+                    ti.sync()
+                    dt_wall = time.perf_counter() - t0
+                    if run["first_step_s"] is None:
+                        run["first_step_s"] = dt_wall
+                    else:
+                        run["step_times"].append(dt_wall)
+                # The watch may be read only every check_every steps: read it now, so a frame after a
+                # diverged step is never written.
+                stepper.check(state)
+                if export:
+                    t0 = time.perf_counter()
+                    scene.export_frame(out, frame)
+                    run["export_s"] += time.perf_counter() - t0
+                run["frames_done"] = frame + 1
+                if viewer is not None:
+                    snap = state.snapshot()
+                    if not viewer.draw(snap.x, snap.color, scene.point_radius):
+                        break
+    finally:
+        bar.close()
     t0 = time.perf_counter()
-    png = scene.render(out / f"{scene.name}_last.png")
-    render_s = time.perf_counter() - t0
+    scene.render(out / f"{scene.name}_last.png")
+    run["render_s"] = time.perf_counter() - t0
+
+
+def _summary(scene, stepper, out, frames, run, files, complete: bool) -> dict:
+    model, state, integ = scene.model, scene.state, scene.integrator
+    step_times, first_step_s = run["step_times"], run["first_step_s"]
     steady = float(np.median(step_times)) if step_times else float(first_step_s or 0.0)
-    alive = int(state.alive_mask().sum())
+    png = [f["path"] for f in files if f["path"].endswith("_last.png")]
     summary = {
         "scene": scene.name,
         "frames": frames,
+        "frames_done": run["frames_done"],
         "steps": state.step_count,
         "simulated_s": state.time,
-        "particles_alive": alive,
         "ms_per_step": steady * 1e3,
         "ms_per_step_mean": float(np.mean(step_times)) * 1e3 if step_times else None,
         "first_step_s": first_step_s,
         "compile_s": max((first_step_s or 0.0) - steady, 0.0),
-        "export_s": export_s,
-        "render_s": render_s,
-        "files_written": files,
-        "png": str(png),
+        "export_s": run["export_s"],
+        "render_s": run["render_s"],
+        "files_written": len(files),
+        "out_dir": str(out),
+        "png": str(out / png[0]) if png else None,
         "arch": backend_name(),
+        "health": stepper.health.to_dict(),
     }
-    spheres = integ.stepper_for(model).contacts
+    if not complete:
+        return summary  # the state may be non-finite or the runtime interrupted: report only the counts
+    summary["particles_alive"] = int(state.alive_mask().sum())
+    spheres = stepper.contacts
     if spheres is not None:
         overlap, contacts = spheres.overlap_stats(model, state)
         summary["neighbor_search"] = spheres.neighbors.describe()
         summary["sphere_contacts"] = contacts
         summary["max_overlap_over_radius"] = overlap / spheres.min_radius
-    solver = getattr(scene.integrator, "linear_solver", None)
+    solver = getattr(integ, "linear_solver", None)
     if model.coupled and solver is not None and solver.solves:
         summary["linear_solver"] = solver.name
         summary["mean_iterations"] = solver.total_iterations / solver.solves
         summary["last_residual"] = solver.last.residual
-    settings = {**scene.settings(), "frames": frames, "export": export, **(extra_settings or {})}
-    summary["manifest"] = str(write_manifest(out, settings, summary))
     return summary
 
 
+def health_brief(health: dict | None, *, limit: int = 4) -> str:
+    """The non-zero health counters, e.g. "linear_unconverged 12, events.stability 1", or ""."""
+    counts = [(k, v) for k, v in sorted(((health or {}).get("counts") or {}).items()) if v]
+    text = ", ".join(f"{k} {v}" for k, v in counts[:limit])
+    if len(counts) > limit:
+        text += f" (+{len(counts) - limit} more in run.json)"
+    return text
+
+
 def summary_line(s: dict) -> str:
-    """One line per run: particles alive, ms per step, compile time, where the output went."""
+    """One line per run: particles alive, ms per step, compile time, health, where the output went."""
     spheres = ""
     if "neighbor_search" in s:
         spheres = (
@@ -106,8 +181,10 @@ def summary_line(s: dict) -> str:
             f"{s['linear_solver']} {s['mean_iterations']:.1f} iterations per step (last residual "
             f"{s['last_residual']:.1e}), "
         )
+    health = health_brief(s.get("health"))
+    health = f"health: {health}, " if health else ""
     return (
-        f"{s['scene']}: {s['frames']} frames, {s['steps']} steps on {s['arch']}: {s['particles_alive']} "
-        f"particles alive, {spheres}{s['ms_per_step']:.3f} ms/step, compile {s['compile_s']:.2f} s, export "
-        f"{s['export_s']:.2f} s ({s['files_written']} files), picture {s['png']}"
+        f"{s['scene']}: {s['frames_done']} frames, {s['steps']} steps on {s['arch']}: {s['particles_alive']} "
+        f"particles alive, {spheres}{health}{s['ms_per_step']:.3f} ms/step, compile {s['compile_s']:.2f} s, "
+        f"export {s['export_s']:.2f} s ({s['files_written']} files), picture {s['png']}"
     )
