@@ -14,8 +14,10 @@ import numpy as np
 import pytest
 
 from taichi_anim.errors import OutputError, ParameterError
+from taichi_anim.io.atomic import atomic_path, incomplete_reason, text_rows_problem
 from taichi_anim.io.export import (
     area_weighted_normals,
+    frame_numbering,
     frame_path,
     read_line_set,
     read_point_cloud,
@@ -25,7 +27,13 @@ from taichi_anim.io.export import (
     write_point_cloud,
     write_triangle_mesh,
 )
-from taichi_anim.io.manifest import environment, jsonable, read_manifest, write_manifest
+from taichi_anim.io.manifest import (
+    environment,
+    jsonable,
+    prepare_run_folder,
+    read_manifest,
+    write_manifest,
+)
 
 o3d = pytest.importorskip("open3d")
 
@@ -63,6 +71,20 @@ def test_frame_path_pads_to_four_digits_and_grows(tmp_path):
     # Zero padding keeps lexical order equal to frame order below 10000.
     names = [frame_path(tmp_path, "x", i).name for i in (3, 20, 100, 1000)]
     assert names == sorted(names)
+
+
+def test_frame_path_pads_to_the_run_length(tmp_path):
+    # 10000 frames are numbered 0..9999 (4 digits); 10001 need 5 digits for every name to sort right.
+    assert frame_path(tmp_path, "c", 7, frames=10000).name == "c_0007.ply"
+    names = [frame_path(tmp_path, "c", i, frames=10001).name for i in range(10001)]
+    assert names[7] == "c_00007.ply" and names[-1] == "c_10000.ply" and names == sorted(names)
+    with frame_numbering(123456) as digits:  # what a run sets around its scene's export
+        assert digits == 6 and frame_path(tmp_path, "c", 42).name == "c_000042.ply"
+    assert frame_path(tmp_path, "c", 42).name == "c_0042.ply"
+    with pytest.raises(ParameterError, match="frame must be < frames"):
+        frame_path(tmp_path, "c", 12, frames=12)
+    with pytest.raises(ParameterError, match="frames"):
+        frame_path(tmp_path, "c", 0, frames=0)
 
 
 @pytest.mark.parametrize("frame", [-1, 1.5, True])
@@ -393,6 +415,96 @@ def test_failed_write_keeps_the_previous_version(tmp_path, monkeypatch, rng):
     assert listing(tmp_path) == ["p.ply"]
 
 
+def test_publishing_flushes_the_file_renames_it_then_flushes_the_folder(tmp_path, monkeypatch, rng):
+    import os
+
+    events = []
+    fsync, replace = os.fsync, os.replace
+
+    def record_fsync(fd):
+        events.append(("fsync", os.path.realpath(f"/proc/self/fd/{fd}")))
+        return fsync(fd)
+
+    def record_replace(a, b):
+        events.append(("replace", str(a), str(b)))
+        return replace(a, b)
+
+    monkeypatch.setattr(os, "fsync", record_fsync)
+    monkeypatch.setattr(os, "replace", record_replace)
+    path = write_point_cloud(tmp_path / "p.ply", rng.random((5, 3)))
+    kinds = [e[0] for e in events]
+    assert kinds == ["fsync", "replace", "fsync"]
+    tmp = events[1][1]
+    assert events[0][1] == tmp and events[1][2] == str(path) and events[2][1] == str(tmp_path)
+
+
+def test_a_file_in_the_way_is_an_output_error(tmp_path, rng):
+    (tmp_path / "seq").write_text("a file, not a folder")
+    with pytest.raises(OutputError, match="is not a folder"):
+        write_point_cloud(tmp_path / "seq" / "p_0000.ply", rng.random((3, 3)))
+    (tmp_path / "d.ply").mkdir()  # a folder where the file should go
+    with pytest.raises(OutputError, match="folder"):
+        write_point_cloud(tmp_path / "d.ply", rng.random((3, 3)))
+    assert listing(tmp_path) == ["d.ply", "seq"]
+
+
+def test_incomplete_files_are_recognised_in_every_format_we_write(tmp_path, rng):
+    # Each format is cut at half its length: the check must notice, and pass the complete file.
+    v, f = grid_mesh(5)
+    pts = rng.random((50, 3))
+    files = [
+        write_point_cloud(tmp_path / "p.ply", pts, attributes={"v": pts}),
+        write_point_cloud(tmp_path / "p.pcd", pts, attributes={"a": pts[:, 0]}),
+        write_triangle_mesh(tmp_path / "m.ply", v, f),
+        write_line_set(tmp_path / "l.ply", pts, np.array([[0, 1], [2, 3]])),
+        write_manifest(tmp_path, {"x": pts}, {}),
+    ]
+    png = tmp_path / "i.png"
+    png.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(100) + b"\0\0\0\0IEND\xaeB`\x82")
+    for path in [*files, png]:
+        assert incomplete_reason(path) is None, path
+        data = path.read_bytes()
+        path.write_bytes(data[: len(data) // 2])
+        assert incomplete_reason(path) is not None, path
+    # Header-less text (OBJ, XYZ): counted lines, and a cut last line.
+    obj = write_triangle_mesh(tmp_path / "m.obj", v, f)
+    assert text_rows_problem(obj, {b"v": len(v), b"f": len(f)}) is None
+    assert "expected" in text_rows_problem(obj, {b"v": len(v), b"f": len(f) + 1})
+    obj.write_bytes(obj.read_bytes()[:-3])
+    assert text_rows_problem(obj, {b"v": len(v)}) == "the last line is cut off"
+
+
+def test_publishing_a_truncated_file_raises_and_publishes_nothing(tmp_path):
+    with pytest.raises(OutputError, match="incomplete"):
+        with atomic_path(tmp_path / "x.ply") as tmp:
+            header = "ply\nformat binary_little_endian 1.0\nelement vertex 9\nproperty float x\nend_header\n"
+            tmp.write_text(header)
+    assert listing(tmp_path) == []
+
+
+def test_run_folder_removes_only_the_previous_runs_files(tmp_path):
+    outside = tmp_path / "outside.ply"
+    outside.write_text("not in the run folder")
+    out = tmp_path / "run"
+    out.mkdir()
+    for n in ("a_0000.ply", "listed.obj", "user.txt", "b_0000.ply", "b_last.png", "b_extra_0001.ply"):
+        (out / n).write_text("x")
+    (out / "sub").mkdir()
+    files = ["listed.obj", "../outside.ply", str(outside), "sub", {"bogus": 1}]
+    (out / "run.json").write_text(
+        json.dumps(
+            {"settings": {"scene": "a"}, "files": [{"path": p} if isinstance(p, str) else p for p in files]}
+        )
+    )
+    removed = prepare_run_folder(out, names=["b"])
+    # Listed plain names, the old scene's frames and the new scene's frames; never outside the folder.
+    expected = ["a_0000.ply", "b_0000.ply", "b_extra_0001.ply", "b_last.png", "listed.obj"]
+    assert sorted(p.name for p in removed) == expected
+    assert listing(out) == ["run.json", "sub", "user.txt"] and outside.exists()
+    with pytest.raises(OutputError, match="is a file"):
+        prepare_run_folder(out / "user.txt")
+
+
 def test_write_creates_missing_folders(tmp_path, rng):
     path = frame_path(tmp_path / "out" / "seq", "p", 3)
     write_point_cloud(path, rng.random((3, 3)))
@@ -432,6 +544,8 @@ def test_manifest_round_trips_numpy_enums_dataclasses_and_paths(tmp_path):
     timings = {"step_s": np.float64(0.0125), "compile_s": 1.5, "steps_per_s": np.array([79.9, 80.1])}
     path = write_manifest(tmp_path, settings, timings)
     assert path == tmp_path / "run.json" and listing(tmp_path) == ["run.json"]
+    with pytest.raises(ValueError, match="status"):
+        write_manifest(tmp_path, settings, timings, status="done")
     doc = json.loads(path.read_text())  # strict JSON parse of the text on disk
     assert doc == read_manifest(tmp_path)
     s = doc["settings"]
@@ -445,6 +559,7 @@ def test_manifest_round_trips_numpy_enums_dataclasses_and_paths(tmp_path):
     assert s["method"] == "IMPLICIT" and s["IMPLICIT"] == "enum key" and s["out"] == str(tmp_path)
     assert s["flags"] == {"b": True} and s["residual"] == "NaN"
     assert doc["timings"] == {"step_s": 0.0125, "compile_s": 1.5, "steps_per_s": [79.9, 80.1]}
+    assert doc["schema"] == 2 and doc["status"] == "complete" and doc["files"] == [] and doc["error"] is None
 
     env = doc["environment"]
     assert env["python"] == platform.python_version() and env["machine"] == platform.machine()

@@ -92,8 +92,10 @@ def assert_manifest_matches_folder(out: Path, *, status: str) -> dict:
 # ------------------------------------------------------------------------------------------ full disk
 
 
+@pytest.mark.slow
 def test_full_disk_fountain_cli_fails_cleanly(tmp_path):
-    """Pass: the fountain demo with a 60 kB file size limit exits with code 3 and one line on stderr naming
+    """The issue's reproduction (slow: a fresh process compiles the fountain, ~10 s on an idle 2-core CPU).
+    Pass: the fountain demo with a 60 kB file size limit exits with code 3 and one line on stderr naming
     the file; no truncated file is left under a final name, no temporary is left, and run.json says
     "failed" (OutputError) and lists exactly the complete files that are there, sizes and SHA-256 true."""
     out = tmp_path / "out"
@@ -117,6 +119,34 @@ def test_full_disk_fountain_cli_fails_cleanly(tmp_path):
     for f in doc["files"]:
         reader = read_line_set if "trails" in f["path"] else read_point_cloud
         assert len(reader(out / f["path"])["points"]) > 0
+
+
+def test_full_disk_through_the_cli_exits_3_with_run_json_failed(tmp_path, monkeypatch, capsys):
+    """Pass: when the disk fills while the last picture is written (a 16 kB file size limit around the
+    render; frames are 0.5 kB, the picture ~40 kB), the CLI exits 3 with one line on stderr naming the
+    picture, the picture is absent (not truncated), and run.json says "failed" and lists exactly the
+    frames, which are complete."""
+    import taichi_anim.scenes as scenes
+
+    def make_scene(name, **options):
+        scene = tiny_scene()
+        render = scene.render
+
+        def render_on_a_full_disk(path, *args, **kwargs):
+            with file_size_limit(16_000):
+                return render(path, *args, **kwargs)
+
+        scene.render = render_on_a_full_disk
+        return scene
+
+    monkeypatch.setattr(scenes, "make_scene", make_scene)
+    assert main(["demo", "--frames", "3", "--out", str(tmp_path), "--quiet"]) == EXIT_OUTPUT
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("taichi-anim: error: cannot write")
+    assert "tiny_last.png" in err[0]
+    doc = assert_manifest_matches_folder(tmp_path, status="failed")
+    assert [f["path"] for f in doc["files"]] == ["tiny_0000.ply", "tiny_0001.ply", "tiny_0002.ply"]
+    assert doc["error"]["type"] == "OutputError" and "tiny_last.png" not in listing(tmp_path)
 
 
 @pytest.mark.parametrize("kind", ["ply", "pcd", "xyz", "mesh_ply", "mesh_obj", "lines", "json"])
