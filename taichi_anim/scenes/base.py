@@ -79,7 +79,9 @@ class Scene:
     def export_frame(self, out_dir, frame: int) -> list[Path]:
         """Write this frame's point cloud (with velocity and age) and, with trails, its line set. With
         cloth, `<name>_NNNN.ply` is the cloth mesh with area-weighted vertex normals, and the particles
-        that are no cloth vertex (if any) go to `<name>_particles_NNNN.ply`."""
+        that are no cloth vertex (if any) go to `<name>_particles_NNNN.ply`. NNNN has 4 digits, or as
+        many as the run's frame count needs (the runner sets io.export.frame_numbering); every file is
+        published only once complete and flushed (io.atomic)."""
         snap = self.state.snapshot()
         mesh = self.cloth_mesh(snap)
         paths = []
