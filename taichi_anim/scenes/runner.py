@@ -169,7 +169,8 @@ def health_brief(health: dict | None, *, limit: int = 4) -> str:
 
 
 def summary_line(s: dict) -> str:
-    """One line per run: particles alive, ms per step, compile time, health, where the output went."""
+    """One line per run: particles alive, ms per step, compile time, health, where the output went (and
+    the status, when the run did not complete)."""
     spheres = ""
     if "neighbor_search" in s:
         spheres = (
@@ -183,8 +184,11 @@ def summary_line(s: dict) -> str:
         )
     health = health_brief(s.get("health"))
     health = f"health: {health}, " if health else ""
+    status = "" if s.get("status", "complete") == "complete" else f" ({s['status']})"
+    alive = s.get("particles_alive")
+    alive = "" if alive is None else f"{alive} particles alive, "
     return (
-        f"{s['scene']}: {s['frames_done']} frames, {s['steps']} steps on {s['arch']}: {s['particles_alive']} "
-        f"particles alive, {spheres}{health}{s['ms_per_step']:.3f} ms/step, compile {s['compile_s']:.2f} s, "
+        f"{s['scene']}{status}: {s['frames_done']} frames, {s['steps']} steps on {s['arch']}: {alive}"
+        f"{spheres}{health}{s['ms_per_step']:.3f} ms/step, compile {s['compile_s']:.2f} s, "
         f"export {s['export_s']:.2f} s ({s['files_written']} files), picture {s['png']}"
     )
