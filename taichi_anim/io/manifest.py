@@ -8,7 +8,8 @@ after the previous and the current scene (`NAME_0042.ply`, `NAME_trails_0042.ply
 a run killed before its final run.json listed nothing) and the hidden temporaries killed runs leave.
 Other files (a user's notes, other scenes' caches) are never touched. A fresh folder per run would keep
 old runs, but then every consumer (a Blender import, a viewer) must be pointed at a new folder each
-time; keeping old runs is a matter of choosing another `--out`.
+time; keeping old runs is a matter of choosing another `--out`. Two runs must not share a folder at the
+same time: the second would remove the first's files and temporaries.
 
 run.json is written (atomically) when the run starts, with status "running", and rewritten at the end
 with "complete", "diverged" (DivergenceError: the step, particle, quantity and value under "error") or
