@@ -61,7 +61,7 @@ def test_only_the_terms_a_scene_adds_are_in_its_model_and_solvers():
 def test_two_integrators_on_one_model_share_no_scratch():
     """Implicit PCG warm-starts from its own last solution: stepping two states of one model with two
     integrators, interleaved, gives bit for bit what each gives alone (shared scratch would mix them)."""
-    model = sheet(FABRIC, springs_too=True)
+    model = sheet(ta.ClothMaterial())  # springs: the PCG warm start is the scratch under test
     kick = np.zeros((model.particle_count, 3))
     kick[-1] = (0.0, 0.0, 2.0)
     starts = (np.zeros_like(kick), kick)
@@ -89,6 +89,7 @@ def test_two_integrators_on_one_model_share_no_scratch():
     assert not np.array_equal(alone[0], alone[1])
 
 
+@pytest.mark.slow  # eight integrators compiled for four mixed terms: ~100 s; orders on cloth are in the default run
 def test_mixed_terms_converge_under_every_integrator():
     """Springs + membrane + bending + aerodynamics on one sheet, 0.05 s: every explicit method against
     an RK4 reference at a 16x smaller step, errors ordered by the methods' orders; implicit Euler with
