@@ -1,5 +1,388 @@
-"""Stability guard: the model's highest frequency against the explicit method's stability region."""
+"""Stability guard: the model's highest frequency against the explicit method's stability region.
+
+Highest frequency. Linearised about a state, the model is M x'' + C x' + K x = f, K = -df/dx and
+C = -df/dv summed over the force terms (springs, membrane, bending, aerodynamic panels, anchors, drag;
+each term's own positive semi-definite linearisation, the one the implicit solvers use); sphere contacts
+are projections, not penalty springs, and add no stiffness. The modes' squared frequencies are the
+eigenvalues of M^-1 K over the free particles (pinned particles, of mass 0, are left out), the same as
+those of the symmetric Ks = M^-1/2 K M^-1/2. Two estimates of its largest eigenvalue omega_max^2:
+  - block Gershgorin (Feingold & Varga, "Block diagonally dominant matrices and generalizations of the
+    Gerschgorin circle theorem", Pacific J. Math. 12, 1962): every eigenvalue of the symmetric Ks lies
+    below max_i [lambda_max(D_i) + sum_j ||B_ij||_2], D_i the 3x3 diagonal and B_ij the off-diagonal
+    blocks of particle i's row. A guaranteed upper bound, one pass over the elements;
+  - Lanczos with full reorthogonalisation (Golub & Van Loan, "Matrix Computations", 4th ed., sec. 10.1)
+    on Ks, from a seeded random start, until the top Ritz pair's residual r = beta_m |y_m| is below
+    1e-3 of its value; omega^2 = theta + r (an eigenvalue lies within r of theta; Lanczos reaches the
+    top of the spectrum first, so this is omega_max^2 to about r in practice, not a proven bound).
+The damping ratio of that mode is zeta = u^T Cs u / (2 omega), u the unit Ritz vector.
+
+Stability region. Each mode is the test system y' = A y, A = [[0, 1], [-w^2, -c]], its eigenvalues
+lambda = -c/2 +- sqrt(c^2/4 - w^2). A Runge-Kutta method multiplies them by its stability function
+R(h lambda) = 1 + z b^T (I - z A_rk)^-1 1 (Hairer & Wanner, "Solving ODEs II", sec. IV.2, eq. 2.3);
+symplectic Euler's one-step map is [[1 - h^2 w^2, h (1 - h c)], [-h w^2, 1 - h c]], whose spectral radius
+is 1 for h w < 2 undamped (Hairer, Lubich & Wanner, "Geometric Numerical Integration", sec. I.1.2).
+A step h is within the limit when no mode's energy grows faster than GROWTH per second of simulated
+time: rho(h)^(2/h) <= 1 + GROWTH. For symplectic Euler (h w < 2) and RK4 (|z| <= 2 sqrt 2 on the
+imaginary axis) this is their sharp boundary; explicit Euler and midpoint grow every undamped oscillation
+at any h (|R(i y)|^2 = 1 + y^2 and 1 + y^4/4), so their limit is where that growth reaches GROWTH: with
+no damping h <= ln(1 + GROWTH) / w^2 for Euler, tiny on stiff cloth; with damping, where the damping
+outweighs the growth. The modes below omega_max are checked with the damping of stiffness-proportional
+(Rayleigh) damping through the top mode, c(w) = 2 zeta omega (w / omega)^2. Implicit Euler has no limit;
+the adaptive methods (rk45, adaptive) choose their own steps and are exempt.
+"""
+
+import math
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from . import validate
+from .errors import ParameterError
+
+GROWTH = 0.01  # energy growth per second of simulated time that a step may allow (1%)
+GUARD_SAFETY = 0.95  # the guard reports steps above this fraction of the limit
+AUTO_SAFETY = 0.8  # automatic substeps keep each step below this fraction of the limit
+MAX_AUTO_SUBSTEPS = 100_000
+LANCZOS_STEPS = 80
+LANCZOS_RTOL = 1e-3
+_MODES = np.linspace(0.02, 1.0, 50)  # modes w / omega_max checked by stability_limit
+
+
+@dataclass(frozen=True)
+class Frequency:
+    """Highest frequency of a model about a state: omega [rad/s] (Lanczos, see the module docstring),
+    bound [rad/s] (block Gershgorin, an upper bound), zeta: damping ratio of the top mode, iterations
+    (Lanczos steps), seconds (wall time of the estimate)."""
+
+    omega: float
+    bound: float
+    zeta: float
+    iterations: int
+    seconds: float
+
+
+# ---------------------------------------------------------------- the linearisation, per element
+
+
+def _element_blocks(model, x, v, t):
+    """The model's K and C as element blocks: a list of (ids (E, a) particle indices, K (E, 3a, 3a) [N/m],
+    C (E, 3a, 3a) [kg/s])."""
+    groups = []
+    n = model.particle_count
+    for term in model.element_terms:
+        if hasattr(term, "element_arrays"):
+            # S(h) = h C + h^2 K (terms/base.py): two step sizes separate K and C.
+            s1 = term.element_arrays(x, v, t, 1.0)[2]
+            s2 = term.element_arrays(x, v, t, 2.0)[2]
+            k = 0.5 * (s2 - 2.0 * s1)
+            groups.append((term.vertices, k, s1 - k))
+        elif hasattr(term, "pairs") and hasattr(term, "stiffness"):
+            groups.append(_spring_blocks(term, x))
+        else:
+            raise ParameterError(f"the stability estimate does not know element term {type(term).__name__}")
+    point = _point_blocks(model, x, v)
+    if point is not None:
+        groups.append((np.arange(n)[:, None], *point))
+    return groups
+
+
+def _spring_blocks(springs, x):
+    """Blocks of springs (terms/springs.py): K_s = k [n n^T + max(1 - L/l, 0) (I - n n^T)], C_s = c n n^T
+    on [[+, -], [-, +]]."""
+    p = springs.pairs
+    d = x[p[:, 0]] - x[p[:, 1]]
+    length = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
+    nrm = d / length[:, None]
+    nn = nrm[:, :, None] * nrm[:, None, :]
+    tr = np.maximum(1.0 - springs.rest_length / length, 0.0)
+    k = springs.stiffness[:, None, None] * (nn + tr[:, None, None] * (np.eye(3) - nn))
+    c = springs.damping[:, None, None] * nn
+    sign = np.array([[1.0, -1.0], [-1.0, 1.0]])
+    return (
+        p,
+        np.kron(sign, np.ones((3, 3)))[None] * np.tile(k, (1, 2, 2)),
+        np.kron(sign, np.ones((3, 3)))[None] * np.tile(c, (1, 2, 2)),
+    )
+
+
+def _point_blocks(model, x, v):
+    """Per-particle 3x3 blocks (N, 3, 3) of the pointwise terms, K and C, or None without any."""
+    n = model.particle_count
+    k = np.zeros((n, 3, 3))
+    c = np.zeros((n, 3, 3))
+    found = False
+    for term in model.point_terms:
+        if not term.has_jacobian:
+            continue
+        kind = term.settings()["type"]
+        if kind in ("drag", "wind"):
+            c += term.k * np.eye(3)
+        elif kind == "anchor_spring":
+            anchor = term.anchor.to_numpy().astype(np.float64)
+            stiff, rest, damp = term.params.to_numpy().astype(np.float64).T
+            d = x - anchor
+            length = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
+            nrm = d / length[:, None]
+            nn = nrm[:, :, None] * nrm[:, None, :]
+            tr = np.maximum(1.0 - rest / length, 0.0)
+            k += stiff[:, None, None] * (nn + tr[:, None, None] * (np.eye(3) - nn))
+            c += damp[:, None, None] * nn
+        else:
+            raise ParameterError(f"the stability estimate does not know force term {type(term).__name__}")
+        found = True
+    return (k, c) if found else None
+
+
+# ---------------------------------------------------------------- the estimates
+
+
+class _Scaled:
+    """Ks = M^-1/2 K M^-1/2 and Cs as element blocks over the free particles' degrees of freedom."""
+
+    def __init__(self, groups, masses):
+        free = masses > 0.0
+        s = np.where(free, 1.0 / np.sqrt(np.where(free, masses, 1.0)), 0.0)
+        self.size = 3 * len(masses)
+        self.free_dofs = np.repeat(free, 3)
+        self.parts = []
+        for ids, k, c in groups:
+            sd = np.repeat(s[ids], 3, axis=1)  # (E, 3a) scale of each degree of freedom
+            scale = sd[:, :, None] * sd[:, None, :]
+            dofs = (3 * ids[:, :, None] + np.arange(3)).reshape(len(ids), -1)
+            self.parts.append((ids, dofs, k * scale, c * scale))
+
+    def apply(self, p, which: int) -> np.ndarray:
+        """Ks p (which = 2) or Cs p (which = 3) for p (3N,)."""
+        out = np.zeros(self.size)
+        for part in self.parts:
+            dofs, blocks = part[1], part[which]
+            y = np.einsum("eij,ej->ei", blocks, p[dofs])
+            out += np.bincount(dofs.ravel(), weights=y.ravel(), minlength=self.size)
+        return out
+
+    def gershgorin(self, particle_count: int) -> float:
+        """max_i [lambda_max(D_i) + sum_j ||B_ij||_2] over the rows of Ks (block Gershgorin)."""
+        diag = np.zeros((particle_count, 3, 3))
+        off = np.zeros(particle_count)
+        for ids, _, k, _ in self.parts:
+            arity = ids.shape[1]
+            for a in range(arity):
+                ra = slice(3 * a, 3 * a + 3)
+                np.add.at(diag, ids[:, a], k[:, ra, ra])
+                for b in range(arity):
+                    if b != a:
+                        norm = np.linalg.norm(k[:, ra, 3 * b : 3 * b + 3], ord=2, axis=(1, 2))
+                        off += np.bincount(ids[:, a], weights=norm, minlength=particle_count)
+        top = np.linalg.eigvalsh(diag)[:, -1]
+        return float(max(np.max(top + off), 0.0))
+
+    def lanczos(self, seed: int = 0):
+        """(theta + r, unit Ritz vector, steps) for the top eigenpair of Ks (see the module docstring)."""
+        n_free = int(self.free_dofs.sum())
+        steps = min(LANCZOS_STEPS, n_free)
+        q = np.random.default_rng(seed).standard_normal(self.size) * self.free_dofs
+        q /= np.linalg.norm(q)
+        basis = np.zeros((steps + 1, self.size))
+        basis[0] = q
+        alpha, beta = [], []
+        top, vec, j = 0.0, np.zeros(steps), 0
+        for j in range(steps):
+            w = self.apply(basis[j], 2)
+            alpha.append(float(basis[j] @ w))
+            w -= basis[: j + 1].T @ (basis[: j + 1] @ w)  # full reorthogonalisation, twice is enough
+            w -= basis[: j + 1].T @ (basis[: j + 1] @ w)
+            b = float(np.linalg.norm(w))
+            t = np.diag(alpha) + np.diag(beta, 1) + np.diag(beta, -1)
+            vals, vecs = np.linalg.eigh(t)
+            top, vec = float(vals[-1]), vecs[:, -1]
+            residual = b * abs(vec[-1])
+            if residual <= LANCZOS_RTOL * max(top, 1e-300) or b <= 1e-12 * max(top, 1e-300):
+                top += residual
+                break
+            beta.append(b)
+            basis[j + 1] = w / b
+        else:
+            top += residual
+        return top, basis[: len(vec)].T @ vec, j + 1
+
+
+def frequency(model, x, v=None, t: float = 0.0) -> Frequency:
+    """Highest frequency [rad/s] of `model` linearised at positions x (N,3) [m] and velocities v (N,3)
+    [m/s] (default 0): see the module docstring."""
+    start = time.perf_counter()
+    x = np.asarray(x, dtype=np.float64)
+    v = np.zeros_like(x) if v is None else np.asarray(v, dtype=np.float64)
+    masses = model.particle_masses()
+    groups = _element_blocks(model, x, v, t)
+    if not groups or not np.any(masses > 0.0):
+        return Frequency(0.0, 0.0, 0.0, 0, time.perf_counter() - start)
+    scaled = _Scaled(groups, masses)
+    bound = math.sqrt(scaled.gershgorin(model.particle_count))
+    lam, u, steps = scaled.lanczos()
+    omega = math.sqrt(max(lam, 0.0))
+    zeta = float(u @ scaled.apply(u, 3)) / (2.0 * omega) if omega > 0.0 else 0.0
+    return Frequency(omega, bound, zeta, steps, time.perf_counter() - start)
+
+
+def state_frequency(model, state) -> Frequency:
+    """frequency() at the state's positions and velocities and time."""
+    x = state.particle_x.to_numpy()
+    v = state.particle_v.to_numpy()
+    return frequency(model, x, v, state.time)
+
+
+# ---------------------------------------------------------------- stability regions
+
+
+def _kind(method):
+    """("implicit" | "exempt" | "rk" | "symplectic" | "unknown", tableau or None) of an integrator or name."""
+    name = method if isinstance(method, str) else method.name
+    if name == "implicit_euler" or getattr(method, "implicit", False):
+        return "implicit", None
+    if name == "rk45" or name.startswith("adaptive"):
+        return "exempt", None
+    if name == "symplectic_euler":
+        return "symplectic", None
+    tableau = getattr(method, "tableau", None)
+    if tableau is None and name in ("explicit_euler", "midpoint", "rk4"):
+        from .integrators import runge_kutta  # here: the integrators import the stepper, which imports us
+
+        tableau = {"explicit_euler": runge_kutta.EXPLICIT_EULER, "midpoint": runge_kutta.MIDPOINT}.get(
+            name, runge_kutta.RK4
+        )
+    return ("rk", tableau) if tableau is not None else ("unknown", None)
+
+
+def _rk_increment(tableau, z: np.ndarray) -> np.ndarray:
+    """P(z) = (R(z) - 1) / z of an explicit Runge-Kutta tableau: stage values K_s = 1 + z sum_j a_sj K_j,
+    P = sum_s b_s K_s (kept apart from the 1, so small steps lose no digits)."""
+    stages = []
+    for s in range(len(tableau.b)):
+        ks = np.ones_like(z)
+        for j, a in enumerate(tableau.a[s] if s < len(tableau.a) else ()):
+            ks = ks + z * a * stages[j]
+        stages.append(ks)
+    return sum(b * ks for b, ks in zip(tableau.b, stages, strict=True))
+
+
+def _log_radius2(kind, tableau, h: float, w: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """ln rho^2 of one step h on each mode (w [rad/s], c [1/s] damping per unit mass): the energy growth
+    per step, computed without cancelling against 1."""
+    if kind == "symplectic":
+        # One-step map [[1 - h^2 w^2, h (1 - h c)], [-h w^2, 1 - h c]]: det = 1 - h c, tr = 2 - a with
+        # a = h^2 w^2 + h c, and tr^2/4 - det = a^2/4 - h^2 w^2.
+        a = h * h * w * w + h * c
+        disc = a * a / 4.0 - h * h * w * w
+        real = np.abs(1.0 - a / 2.0) + np.sqrt(np.maximum(disc, 0.0))
+        complex_pair = np.log1p(np.maximum(-h * c, -1.0 + 1e-300))  # rho^2 = det = 1 - h c
+        return np.where(disc < 0.0, complex_pair, 2.0 * np.log(np.maximum(real, 1e-300)))
+    disc = np.sqrt((c * c / 4.0 - w * w).astype(complex))
+    z = h * np.concatenate([-c / 2.0 + disc, -c / 2.0 - disc])
+    zp = z * _rk_increment(tableau, z)  # R - 1
+    return np.log1p(np.maximum(2.0 * zp.real + np.abs(zp) ** 2, -1.0 + 1e-300))
+
+
+def stability_limit(method, omega: float, zeta: float = 0.0, *, growth: float = GROWTH) -> float | None:
+    """Largest step [s] of `method` (an integrator or its name) on modes up to omega [rad/s] with damping
+    ratio zeta at the top (see the module docstring): inf for implicit Euler, None for methods that need
+    no limit or have none known (rk45, adaptive)."""
+    kind, tableau = _kind(method)
+    if kind in ("exempt", "unknown"):
+        return None
+    if kind == "implicit" or omega <= 0.0:
+        return math.inf
+    w = omega * _MODES
+    c = 2.0 * zeta * omega * _MODES**2
+    rate = math.log1p(growth)
+
+    def ok(h: float) -> bool:
+        return bool(np.all(_log_radius2(kind, tableau, h, w, c) <= rate * h))
+
+    # Scan up from far below any limit, then bisect: the first failure counts (regions need not be
+    # intervals in h for every method, and the first crossing is the one a user meets).
+    hs = np.geomspace(1e-12 / omega, 10.0 / omega, 400)
+    good = None
+    for h in hs:
+        if not ok(h):
+            break
+        good = h
+    else:
+        return math.inf
+    if good is None:
+        return 0.0
+    lo, hi = good, h
+    for _ in range(50):
+        mid = math.sqrt(lo * hi)
+        lo, hi = (mid, hi) if ok(mid) else (lo, mid)
+    return lo
+
+
+# ---------------------------------------------------------------- the guard and automatic substeps
+
+
+def _estimate(stepper, state) -> Frequency:
+    """The stepper's cached Frequency (estimated once per model, at the first state the guard sees)."""
+    est = getattr(stepper, "stability_estimate", None)
+    if est is None:
+        est = state_frequency(stepper.model, state)
+        stepper.stability_estimate = est
+    return est
 
 
 def guard(stepper, state, dt: float) -> None:
-    """Check a step of dt [s] against the stability limit of the stepper's method (placeholder)."""
+    """Check a step of dt [s] against the stability limit of the stepper's method; called by the Stepper
+    whenever dt changes (the estimate is made once per stepper). A step above GUARD_SAFETY x the limit is
+    reported to `stepper.health` as "unstable_step" (policy "stability": warn, raise or ignore). Sphere
+    contacts may split dt further; the guard checks dt itself, so it can only be on the safe side."""
+    if stepper.policy.stability == "ignore":
+        return
+    method = stepper.integrator
+    kind, _ = _kind(method)
+    if kind in ("exempt", "unknown", "implicit"):
+        return
+    est = _estimate(stepper, state)
+    limit = stability_limit(method, est.omega, est.zeta)
+    if limit is None or dt <= GUARD_SAFETY * limit:
+        return
+    n = math.ceil(dt / (AUTO_SAFETY * limit)) if limit > 0.0 else None
+    advice = f"split it into {n} substeps (substeps='auto')" if n else "use a smaller step"
+    message = (
+        f"{method.name}: dt = {dt:.3g} s exceeds the stability limit {limit:.3g} s of this model "
+        f"(highest frequency {est.omega:.4g} rad/s, damping ratio {est.zeta:.2g}); {advice}, or use "
+        "implicit_euler"
+    )
+    stepper.health.report(
+        "unstable_step", state.step_count, message, "stability", dt=dt, limit=limit, omega=est.omega
+    )
+
+
+def auto_substeps(
+    model, integrator, frame_dt: float, *, safety: float = AUTO_SAFETY, state=None
+) -> tuple[int, dict]:
+    """The smallest number of substeps n for which frame_dt / n [s] is within `safety` x the stability
+    limit of `integrator` on `model` (1 for implicit Euler and the adaptive methods), and a record of the
+    choice (omega [rad/s], zeta, limit [s], substeps) for the run's settings. The estimate is made at
+    `state` (default: a new state, the model's start) and kept on the integrator's stepper, so its guard
+    does not repeat it. Raises ParameterError when more than MAX_AUTO_SUBSTEPS would be needed."""
+    frame_dt = validate.positive("frame_dt", frame_dt)
+    safety = validate.positive("safety", safety)
+    if safety > 1.0:
+        raise ParameterError(f"safety must lie in (0, 1], got {safety!r}")
+    record = {"mode": "auto", "safety": safety, "method": integrator.name}
+    kind, _ = _kind(integrator)
+    if kind in ("exempt", "unknown", "implicit"):
+        return 1, {**record, "substeps": 1, "limit": None}
+    stepper = integrator.stepper_for(model)
+    est = _estimate(stepper, model.state() if state is None else state)
+    limit = stability_limit(integrator, est.omega, est.zeta)
+    record.update(asdict(est), limit=limit)
+    n = 1 if limit is None or math.isinf(limit) else math.ceil(frame_dt / (safety * limit) - 1e-9)
+    if limit is not None and limit <= 0.0 or n > MAX_AUTO_SUBSTEPS:
+        raise ParameterError(
+            f"substeps='auto': {integrator.name} needs {n if limit else 'unbounded'} substeps per "
+            f"{frame_dt:.3g} s on this model (stability limit {limit:.3g} s, highest frequency "
+            f"{est.omega:.4g} rad/s); use symplectic_euler, rk4 or implicit_euler"
+        )
+    record["substeps"] = max(n, 1)
+    return max(n, 1), record
