@@ -385,4 +385,6 @@ def auto_substeps(
             f"{est.omega:.4g} rad/s); use symplectic_euler, rk4 or implicit_euler"
         )
     record["substeps"] = max(n, 1)
+    if limit is not None and math.isinf(limit):
+        record["limit"] = None  # no stiffness: any step is stable (and JSON has no infinity)
     return max(n, 1), record
