@@ -36,6 +36,21 @@ KEY_AMBIENT = 0.45
 GUIDE_COLOR = (0.35, 0.4, 0.45)
 
 
+def check_substeps(substeps):
+    """substeps: a positive integer or "auto" (ParameterError otherwise)."""
+    if substeps == "auto":
+        return substeps
+    if isinstance(substeps, bool) or not isinstance(substeps, numbers.Integral) or substeps < 1:
+        raise ParameterError(f"substeps must be a positive integer or 'auto', got {substeps!r}")
+    return int(substeps)
+
+
+def frame_step(frame_dt: float, substeps) -> float:
+    """The Scene's dt for `substeps` per frame of frame_dt [s]: frame_dt / substeps, or frame_dt itself
+    for "auto" (the Scene splits it)."""
+    return frame_dt if check_substeps(substeps) == "auto" else frame_dt / substeps
+
+
 @dataclass
 class Scene:
     """name, description; model, state, integrator; dt [s] per step, substeps per frame; bounds: (lo, hi)
@@ -64,12 +79,10 @@ class Scene:
     substeps_auto: dict | None = None  # how substeps="auto" chose the substeps (None: fixed by the scene)
 
     def __post_init__(self):
-        n = self.substeps
-        if n == "auto":
+        check_substeps(self.substeps)
+        if self.substeps == "auto":
             n, self.substeps_auto = auto_substeps(self.model, self.integrator, self.dt, state=self.state)
             self.dt, self.substeps = self.dt / n, n
-        elif isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1:
-            raise ParameterError(f"substeps must be a positive integer or 'auto', got {self.substeps!r}")
 
     @property
     def frame_dt(self) -> float:

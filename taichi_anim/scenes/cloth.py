@@ -11,7 +11,7 @@ import numpy as np
 
 from .. import Builder, ClothMaterial, FabricMaterial, make_integrator
 from ..cloth import explicit_step_limit, validate
-from .base import Scene
+from .base import Scene, frame_step
 
 FRAME_DT = 1 / 60  # [s]
 IMPLICIT_SUBSTEPS = 4  # dt = 1/240 s: implicit Euler is stable at any step, this keeps its damping low
@@ -110,7 +110,7 @@ def build(
         model=model,
         state=model.state(),
         integrator=cloth_integrator(integrator),
-        dt=FRAME_DT if substeps == "auto" else FRAME_DT / substeps,
+        dt=frame_step(FRAME_DT, substeps),
         substeps=substeps,
         bounds=(lo, hi),
         point_radius=0.005,

@@ -8,7 +8,7 @@ normals."""
 import numpy as np
 
 from .. import Builder
-from .base import Scene
+from .base import Scene, frame_step
 from .cloth import FRAME_DT, cloth_integrator, material_for, substeps_for
 
 
@@ -84,7 +84,7 @@ def build(
         model=model,
         state=model.state(),
         integrator=cloth_integrator(integrator),
-        dt=FRAME_DT if substeps == "auto" else FRAME_DT / substeps,
+        dt=frame_step(FRAME_DT, substeps),
         substeps=substeps,
         bounds=(lo, hi),
         point_radius=0.005,

@@ -9,7 +9,7 @@ import numpy as np
 
 from .. import Builder, FabricMaterial, make_integrator
 from ..cloth import explicit_step_limit
-from .base import Scene
+from .base import Scene, frame_step
 
 FRAME_DT = 1 / 60  # [s]
 SUBSTEPS = 4
@@ -79,7 +79,7 @@ def build(
         model=model,
         state=model.state(),
         integrator=integ,
-        dt=FRAME_DT if substeps == "auto" else FRAME_DT / substeps,
+        dt=frame_step(FRAME_DT, substeps),
         substeps=substeps,
         bounds=(lo, hi),
         point_radius=0.004,
