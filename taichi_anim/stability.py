@@ -36,9 +36,11 @@ import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
+import taichi as ti
 
 from . import validate
 from .errors import ParameterError
+from .runtime import data_oriented, np_float
 
 GROWTH = 0.01  # energy growth per second of simulated time that a step may allow (1%)
 GUARD_SAFETY = 0.95  # the guard reports steps above this fraction of the limit
@@ -81,7 +83,7 @@ def _element_blocks(model, x, v, t):
             groups.append(_spring_blocks(term, x))
         else:
             raise ParameterError(f"the stability estimate does not know element term {type(term).__name__}")
-    point = _point_blocks(model, x, v)
+    point = _point_blocks(model, x, v, t)
     if point is not None:
         groups.append((np.arange(n)[:, None], *point))
     return groups
@@ -106,19 +108,20 @@ def _spring_blocks(springs, x):
     )
 
 
-def _point_blocks(model, x, v):
-    """Per-particle 3x3 blocks (N, 3, 3) of the pointwise terms, K and C, or None without any."""
+def _point_blocks(model, x, v, t):
+    """Per-particle 3x3 blocks (N, 3, 3) of the pointwise terms, K and C, or None without any. Drag and
+    anchor springs in NumPy (their Jacobians, terms/drag.py and terms/anchor_spring.py); a model with any
+    other pointwise term with a Jacobian evaluates them all in a kernel (model.force_jacobian)."""
     n = model.particle_count
+    terms = [term for term in model.point_terms if term.has_jacobian]
+    if not terms:
+        return None
+    if any(term.settings()["type"] not in ("drag", "wind", "anchor_spring") for term in terms):
+        return _PointJacobians(model).blocks(x, v, t)
     k = np.zeros((n, 3, 3))
     c = np.zeros((n, 3, 3))
-    found = False
-    for term in model.point_terms:
-        if not term.has_jacobian:
-            continue
-        kind = term.settings()["type"]
-        if kind in ("drag", "wind"):
-            c += term.k * np.eye(3)
-        elif kind == "anchor_spring":
+    for term in terms:
+        if term.settings()["type"] == "anchor_spring":
             anchor = term.anchor.to_numpy().astype(np.float64)
             stiff, rest, damp = term.params.to_numpy().astype(np.float64).T
             d = x - anchor
@@ -129,9 +132,34 @@ def _point_blocks(model, x, v):
             k += stiff[:, None, None] * (nn + tr[:, None, None] * (np.eye(3) - nn))
             c += damp[:, None, None] * nn
         else:
-            raise ParameterError(f"the stability estimate does not know force term {type(term).__name__}")
-        found = True
-    return (k, c) if found else None
+            c += term.k * np.eye(3)
+    return k, c
+
+
+@data_oriented
+class _PointJacobians:
+    """-df/dx and -df/dv of the pointwise terms per particle, by a kernel (for terms NumPy cannot read)."""
+
+    def __init__(self, model):
+        n = model.particle_count
+        self.model = model
+        self.x = ti.Vector.field(3, float, n)
+        self.v = ti.Vector.field(3, float, n)
+        self.k = ti.Matrix.field(3, 3, float, n)
+        self.c = ti.Matrix.field(3, 3, float, n)
+
+    def blocks(self, x, v, t):
+        self.x.from_numpy(x.astype(np_float()))
+        self.v.from_numpy(v.astype(np_float()))
+        self._run(self.model, t)
+        return self.k.to_numpy().astype(np.float64), self.c.to_numpy().astype(np.float64)
+
+    @ti.kernel
+    def _run(self, model: ti.template(), t: float):
+        for i in range(model.particle_count):
+            jx, jv = model.force_jacobian(i, self.x[i], self.v[i], t)
+            self.k[i] = -jx
+            self.c[i] = -jv
 
 
 # ---------------------------------------------------------------- the estimates
@@ -330,6 +358,19 @@ def _estimate(stepper, state) -> Frequency:
     return est
 
 
+def _guard_estimate(stepper, state) -> Frequency | None:
+    """_estimate, or None (recorded once as a "stability_unchecked" event) for a model with a term the
+    estimate cannot linearise: the guard must never stop a run it cannot judge."""
+    if getattr(stepper, "stability_unchecked", False):
+        return None
+    try:
+        return _estimate(stepper, state)
+    except ParameterError as e:
+        stepper.stability_unchecked = True
+        stepper.health.event("stability_unchecked", state.step_count, str(e))
+        return None
+
+
 def guard(stepper, state, dt: float) -> None:
     """Check a step of dt [s] against the stability limit of the stepper's method; called by the Stepper
     whenever dt changes (the estimate is made once per stepper). A step above GUARD_SAFETY x the limit is
@@ -341,7 +382,9 @@ def guard(stepper, state, dt: float) -> None:
     kind, _ = _kind(method)
     if kind in ("exempt", "unknown", "implicit"):
         return
-    est = _estimate(stepper, state)
+    est = _guard_estimate(stepper, state)
+    if est is None:
+        return
     limit = stability_limit(method, est.omega, est.zeta)
     if limit is None or dt <= GUARD_SAFETY * limit:
         return

@@ -88,7 +88,15 @@ def rayleigh_springs(beta):
 
 
 @pytest.mark.parametrize(
-    "case", ["springs", "springs_drag_anchor", "membrane", "membrane_stretched", "springs_stretched"]
+    "case",
+    [
+        "springs",
+        "springs_drag_anchor",
+        "springs_stretched",
+        "membrane",
+        # The membrane and bending kernels compile for seconds: the second membrane case runs with -m slow.
+        pytest.param("membrane_stretched", marks=pytest.mark.slow),
+    ],
 )
 def test_frequency_against_dense_eigenvalues(case):
     # Reference: numpy.linalg.eigvals of the dense M^-1 K, K by central differences of the engine's total
@@ -215,3 +223,30 @@ def test_scene_auto_substeps_recorded():
         scene.advance_frame()
     with pytest.raises(ta.ParameterError, match="substeps"):
         make_scene("cloth", integrator="symplectic_euler", resolution=10, substeps=0)
+
+
+def test_pointwise_kernel_matches_numpy():
+    # The kernel fallback for pointwise terms (model.force_jacobian) gives the NumPy blocks of drag and
+    # anchor springs to rounding.
+    model = small_cloth(rayleigh_springs(5e-5), drag=0.002, anchor=True)
+    x = model.state().particle_x.to_numpy().astype(np.float64) * 1.05
+    v = np.zeros_like(x)
+    k_np, c_np = stability._point_blocks(model, x, v, 0.0)
+    k_ti, c_ti = stability._PointJacobians(model).blocks(x, v, 0.0)
+    np.testing.assert_allclose(k_ti, k_np, rtol=1e-10, atol=1e-9)
+    np.testing.assert_allclose(c_ti, c_np, rtol=1e-10, atol=1e-12)
+
+
+def test_guard_skips_models_it_cannot_linearise(monkeypatch):
+    # A term the estimate does not know: the run goes on, one "stability_unchecked" event says why.
+    def unknown(*args):
+        raise ta.ParameterError("the stability estimate does not know element term Foo")
+
+    monkeypatch.setattr(stability, "_element_blocks", unknown)
+    model = spring_pair(0.0, 0.01, 1e3)
+    state = model.state()
+    integ = ta.make_integrator("symplectic_euler")
+    integ.step(model, state, 1.0)
+    integ.step(model, state, 0.5)
+    health = integ.stepper_for(model).health
+    assert health.counts["events.stability_unchecked"] == 1 and health.counts["events.unstable_step"] == 0
