@@ -303,12 +303,12 @@ def _log_radius2(kind, tableau, h: float, w: np.ndarray, c: np.ndarray) -> np.nd
         a = h * h * w * w + h * c
         disc = a * a / 4.0 - h * h * w * w
         real = np.abs(1.0 - a / 2.0) + np.sqrt(np.maximum(disc, 0.0))
-        complex_pair = np.log1p(np.maximum(-h * c, -1.0 + 1e-300))  # rho^2 = det = 1 - h c
+        complex_pair = np.log1p(np.maximum(-h * c, -1.0 + 1e-15))  # rho^2 = det = 1 - h c
         return np.where(disc < 0.0, complex_pair, 2.0 * np.log(np.maximum(real, 1e-300)))
     disc = np.sqrt((c * c / 4.0 - w * w).astype(complex))
     z = h * np.concatenate([-c / 2.0 + disc, -c / 2.0 - disc])
     zp = z * _rk_increment(tableau, z)  # R - 1
-    return np.log1p(np.maximum(2.0 * zp.real + np.abs(zp) ** 2, -1.0 + 1e-300))
+    return np.log1p(np.maximum(2.0 * zp.real + np.abs(zp) ** 2, -1.0 + 1e-15))
 
 
 def stability_limit(method, omega: float, zeta: float = 0.0, *, growth: float = GROWTH) -> float | None:
