@@ -68,9 +68,8 @@ class Frequency:
 
 
 def _element_blocks(model, x, v, t):
-    """The model's K and C as element blocks: a list of (ids (E, a) particle indices, K (E, 3a, 3a) [N/m],
-    C (E, 3a, 3a) [kg/s])."""
-    groups = []
+    """The model's K and C as a list of parts (_SpringPart, _BlockPart)."""
+    parts = []
     n = model.particle_count
     for term in model.element_terms:
         if hasattr(term, "element_arrays"):
@@ -78,34 +77,78 @@ def _element_blocks(model, x, v, t):
             s1 = term.element_arrays(x, v, t, 1.0)[2]
             s2 = term.element_arrays(x, v, t, 2.0)[2]
             k = 0.5 * (s2 - 2.0 * s1)
-            groups.append((term.vertices, k, s1 - k))
+            parts.append(_BlockPart(term.vertices, k, s1 - k))
         elif hasattr(term, "pairs") and hasattr(term, "stiffness"):
-            groups.append(_spring_blocks(term, x))
+            parts.append(_SpringPart(term, x))
         else:
             raise ParameterError(f"the stability estimate does not know element term {type(term).__name__}")
     point = _point_blocks(model, x, v, t)
     if point is not None:
-        groups.append((np.arange(n)[:, None], *point))
-    return groups
+        parts.append(_BlockPart(np.arange(n)[:, None], *point))
+    return parts
 
 
-def _spring_blocks(springs, x):
-    """Blocks of springs (terms/springs.py): K_s = k [n n^T + max(1 - L/l, 0) (I - n n^T)], C_s = c n n^T
-    on [[+, -], [-, +]]."""
-    p = springs.pairs
-    d = x[p[:, 0]] - x[p[:, 1]]
-    length = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
-    nrm = d / length[:, None]
-    nn = nrm[:, :, None] * nrm[:, None, :]
-    tr = np.maximum(1.0 - springs.rest_length / length, 0.0)
-    k = springs.stiffness[:, None, None] * (nn + tr[:, None, None] * (np.eye(3) - nn))
-    c = springs.damping[:, None, None] * nn
-    sign = np.array([[1.0, -1.0], [-1.0, 1.0]])
-    return (
-        p,
-        np.kron(sign, np.ones((3, 3)))[None] * np.tile(k, (1, 2, 2)),
-        np.kron(sign, np.ones((3, 3)))[None] * np.tile(c, (1, 2, 2)),
-    )
+def _scatter(ids, values, n):
+    """(n, 3) sums of values (E, 3) by particle ids (E,) (bincount: no float atomics, fixed order)."""
+    return np.stack([np.bincount(ids, weights=values[:, c], minlength=n) for c in range(3)], axis=1)
+
+
+class _SpringPart:
+    """Springs (terms/springs.py) in their compact form: K_s = k [n n^T + t (I - n n^T)],
+    t = max(1 - L/l, 0), C_s = c n n^T, acting on p_i - p_j (+ at i, - at j)."""
+
+    def __init__(self, springs, x):
+        self.pairs = springs.pairs
+        d = x[self.pairs[:, 0]] - x[self.pairs[:, 1]]
+        length = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
+        self.n = d / length[:, None]
+        self.t = np.maximum(1.0 - springs.rest_length / length, 0.0)
+        self.k = springs.stiffness
+        self.c = springs.damping
+
+    def apply(self, p, damping: bool):
+        i, j = self.pairs[:, 0], self.pairs[:, 1]
+        d = p[i] - p[j]
+        nd = np.einsum("ec,ec->e", self.n, d)[:, None]
+        if damping:
+            f = self.c[:, None] * nd * self.n
+        else:
+            f = self.k[:, None] * ((1.0 - self.t)[:, None] * nd * self.n + self.t[:, None] * d)
+        return _scatter(i, f, len(p)) - _scatter(j, f, len(p))
+
+    def gershgorin(self, diag, off, s):
+        i, j = self.pairs[:, 0], self.pairs[:, 1]
+        nn = self.n[:, :, None] * self.n[:, None, :]
+        blk = self.k[:, None, None] * (nn + self.t[:, None, None] * (np.eye(3) - nn))
+        np.add.at(diag, i, blk)
+        np.add.at(diag, j, blk)
+        norm = self.k * np.maximum(1.0, self.t) * s[i] * s[j]  # eigenvalues of the block: k and k t
+        off += np.bincount(i, weights=norm, minlength=len(off))
+        off += np.bincount(j, weights=norm, minlength=len(off))
+
+
+class _BlockPart:
+    """Element blocks: ids (E, a) particle indices, K and C (E, 3a, 3a)."""
+
+    def __init__(self, ids, k, c):
+        self.ids, self.k, self.c = ids, k, c
+        self.dofs = (3 * ids[:, :, None] + np.arange(3)).reshape(len(ids), -1)
+
+    def apply(self, p, damping: bool):
+        y = np.einsum("eij,ej->ei", self.c if damping else self.k, p.reshape(-1)[self.dofs])
+        return np.bincount(self.dofs.ravel(), weights=y.ravel(), minlength=p.size).reshape(-1, 3)
+
+    def gershgorin(self, diag, off, s):
+        ids, k = self.ids, self.k
+        for a in range(ids.shape[1]):
+            ra = slice(3 * a, 3 * a + 3)
+            np.add.at(diag, ids[:, a], k[:, ra, ra])
+            for b in range(ids.shape[1]):
+                if b != a:
+                    # The Frobenius norm bounds the spectral norm (equal for rank-one blocks).
+                    blk = k[:, ra, 3 * b : 3 * b + 3]
+                    norm = np.sqrt(np.einsum("eij,eij->e", blk, blk)) * s[ids[:, a]] * s[ids[:, b]]
+                    off += np.bincount(ids[:, a], weights=norm, minlength=len(off))
 
 
 def _point_blocks(model, x, v, t):
@@ -166,73 +209,57 @@ class _PointJacobians:
 
 
 class _Scaled:
-    """Ks = M^-1/2 K M^-1/2 and Cs as element blocks over the free particles' degrees of freedom."""
+    """Ks = M^-1/2 K M^-1/2 and Cs over the free particles' degrees of freedom (s = m^-1/2, 0 if pinned)."""
 
-    def __init__(self, groups, masses):
+    def __init__(self, parts, masses):
         free = masses > 0.0
-        s = np.where(free, 1.0 / np.sqrt(np.where(free, masses, 1.0)), 0.0)
+        self.s = np.where(free, 1.0 / np.sqrt(np.where(free, masses, 1.0)), 0.0)
+        self.count = len(masses)
         self.size = 3 * len(masses)
         self.free_dofs = np.repeat(free, 3)
-        self.parts = []
-        for ids, k, c in groups:
-            sd = np.repeat(s[ids], 3, axis=1)  # (E, 3a) scale of each degree of freedom
-            scale = sd[:, :, None] * sd[:, None, :]
-            dofs = (3 * ids[:, :, None] + np.arange(3)).reshape(len(ids), -1)
-            self.parts.append((ids, dofs, k * scale, c * scale))
+        self.parts = parts
 
-    def apply(self, p, which: int) -> np.ndarray:
-        """Ks p (which = 2) or Cs p (which = 3) for p (3N,)."""
-        out = np.zeros(self.size)
-        for part in self.parts:
-            dofs, blocks = part[1], part[which]
-            y = np.einsum("eij,ej->ei", blocks, p[dofs])
-            out += np.bincount(dofs.ravel(), weights=y.ravel(), minlength=self.size)
-        return out
+    def apply(self, p, damping: bool = False) -> np.ndarray:
+        """Ks p (or Cs p) for p (3N,)."""
+        q = p.reshape(-1, 3) * self.s[:, None]
+        out = sum(part.apply(q, damping) for part in self.parts)
+        return (out * self.s[:, None]).reshape(-1)
 
-    def gershgorin(self, particle_count: int) -> float:
+    def gershgorin(self) -> float:
         """max_i [lambda_max(D_i) + sum_j ||B_ij||_2] over the rows of Ks (block Gershgorin)."""
-        diag = np.zeros((particle_count, 3, 3))
-        off = np.zeros(particle_count)
-        for ids, _, k, _ in self.parts:
-            arity = ids.shape[1]
-            for a in range(arity):
-                ra = slice(3 * a, 3 * a + 3)
-                np.add.at(diag, ids[:, a], k[:, ra, ra])
-                for b in range(arity):
-                    if b != a:
-                        norm = np.linalg.norm(k[:, ra, 3 * b : 3 * b + 3], ord=2, axis=(1, 2))
-                        off += np.bincount(ids[:, a], weights=norm, minlength=particle_count)
-        top = np.linalg.eigvalsh(diag)[:, -1]
+        diag = np.zeros((self.count, 3, 3))
+        off = np.zeros(self.count)
+        for part in self.parts:
+            part.gershgorin(diag, off, self.s)
+        top = np.linalg.eigvalsh(diag)[:, -1] * self.s**2
         return float(max(np.max(top + off), 0.0))
 
     def lanczos(self, seed: int = 0):
-        """(theta + r, unit Ritz vector, steps) for the top eigenpair of Ks (see the module docstring)."""
+        """(theta + r, unit Ritz vector, steps) for the top eigenpair of Ks (see the module docstring).
+        Products by einsum, not BLAS: a threaded BLAS on a busy machine was 18x slower here."""
         n_free = int(self.free_dofs.sum())
         steps = min(LANCZOS_STEPS, n_free)
         q = np.random.default_rng(seed).standard_normal(self.size) * self.free_dofs
-        q /= np.linalg.norm(q)
-        basis = np.zeros((steps + 1, self.size))
+        q /= np.sqrt(np.einsum("i,i", q, q))
+        basis = np.empty((steps + 1, self.size))
         basis[0] = q
         alpha, beta = [], []
-        top, vec, j = 0.0, np.zeros(steps), 0
+        top, vec, j, residual = 0.0, np.zeros(1), 0, 0.0
         for j in range(steps):
-            w = self.apply(basis[j], 2)
-            alpha.append(float(basis[j] @ w))
-            w -= basis[: j + 1].T @ (basis[: j + 1] @ w)  # full reorthogonalisation, twice is enough
-            w -= basis[: j + 1].T @ (basis[: j + 1] @ w)
-            b = float(np.linalg.norm(w))
+            w = self.apply(basis[j])
+            alpha.append(float(np.einsum("i,i", basis[j], w)))
+            for _ in range(2):  # full reorthogonalisation, twice is enough
+                w -= np.einsum("ji,j->i", basis[: j + 1], np.einsum("ji,i->j", basis[: j + 1], w))
+            b = float(np.sqrt(np.einsum("i,i", w, w)))
             t = np.diag(alpha) + np.diag(beta, 1) + np.diag(beta, -1)
             vals, vecs = np.linalg.eigh(t)
             top, vec = float(vals[-1]), vecs[:, -1]
             residual = b * abs(vec[-1])
             if residual <= LANCZOS_RTOL * max(top, 1e-300) or b <= 1e-12 * max(top, 1e-300):
-                top += residual
                 break
             beta.append(b)
             basis[j + 1] = w / b
-        else:
-            top += residual
-        return top, basis[: len(vec)].T @ vec, j + 1
+        return top + residual, np.einsum("ji,j->i", basis[: len(vec)], vec), j + 1
 
 
 def frequency(model, x, v=None, t: float = 0.0) -> Frequency:
@@ -242,14 +269,14 @@ def frequency(model, x, v=None, t: float = 0.0) -> Frequency:
     x = np.asarray(x, dtype=np.float64)
     v = np.zeros_like(x) if v is None else np.asarray(v, dtype=np.float64)
     masses = model.particle_masses()
-    groups = _element_blocks(model, x, v, t)
-    if not groups or not np.any(masses > 0.0):
+    parts = _element_blocks(model, x, v, t)
+    if not parts or not np.any(masses > 0.0):
         return Frequency(0.0, 0.0, 0.0, 0, time.perf_counter() - start)
-    scaled = _Scaled(groups, masses)
-    bound = math.sqrt(scaled.gershgorin(model.particle_count))
+    scaled = _Scaled(parts, masses)
+    bound = math.sqrt(scaled.gershgorin())
     lam, u, steps = scaled.lanczos()
     omega = math.sqrt(max(lam, 0.0))
-    zeta = float(u @ scaled.apply(u, 3)) / (2.0 * omega) if omega > 0.0 else 0.0
+    zeta = float(np.einsum("i,i", u, scaled.apply(u, damping=True))) / (2.0 * omega) if omega > 0.0 else 0.0
     return Frequency(omega, bound, zeta, steps, time.perf_counter() - start)
 
 
