@@ -17,7 +17,8 @@ measured unstable.
 Part 2. Cost of the estimate on 128² cloths (springs at k = 10^4, and the continuum fabric of the cloth
 demo: StVK membrane + dihedral bending), f32 as the demos run: wall time of `state_frequency` (first
 call, with any kernel compile, and a second call), its Lanczos steps, against one symplectic Euler step
-of the same cloth. The guard pays it once per stepper, never per step.
+of the same cloth; for the fabric also with blocks=True (its exact element Hessians, which give the
+Gershgorin bound but compile for long). The guard pays it once per stepper, never per step.
 
     .venv/bin/python benchmarks/stability.py           # full run, writes benchmarks/results/stability.md
     .venv/bin/python benchmarks/stability.py --quick   # smoke run (< 1 min), writes benchmarks/out/
@@ -109,14 +110,15 @@ def cost_cloth(n: int, membrane: bool):
 def measure_cost(n: int) -> list[dict]:
     init("f32")
     rows = []
-    for membrane in (False, True):
+    for membrane, blocks in ((False, None), (True, None), (True, True)):
         model = cost_cloth(n, membrane)
         state = model.state()
+        x, v = state.particle_x.to_numpy(), state.particle_v.to_numpy()
         t0 = time.perf_counter()
-        stability.state_frequency(model, state)
+        stability.frequency(model, x, v, blocks=blocks)
         first_s = time.perf_counter() - t0
         t0 = time.perf_counter()
-        again = stability.state_frequency(model, state)
+        again = stability.frequency(model, x, v, blocks=blocks)
         again_s = time.perf_counter() - t0
         integ = ta.make_integrator("symplectic_euler", check_every=cs.CHECK_EVERY, policy=IGNORE)
         dt = 0.5 * stability.stability_limit("symplectic_euler", again.omega, again.zeta)
@@ -129,13 +131,15 @@ def measure_cost(n: int) -> list[dict]:
         step_s = (clock() - t0) / steps
         rows.append(
             {
-                "cloth": f"{n}² {'membrane + bending' if membrane else 'springs k = 1e4'}",
+                "cloth": f"{n}² "
+                + ("membrane + bending" if membrane else "springs k = 1e4")
+                + (", blocks=True" if blocks and membrane else ""),
                 "dofs": 3 * model.particle_count,
                 "first_s": first_s,
                 "again_s": again_s,
                 "lanczos_steps": again.iterations,
                 "omega": again.omega,
-                "bound": again.bound,
+                "bound": again.bound if again.bound == again.bound else None,
                 "step_s": step_s,
             }
         )
@@ -157,7 +161,8 @@ def limits_table(rows: list[dict]) -> str:
         else:
             top = "≥ cap" if r["unstable"] is None else f"{r['unstable']:.3g} ({r['why']})"
             measured = f"{r['stable']:.3g} / {top}"
-            ratio = f"{r['stable'] / r['predicted']:.2f}"
+            hi = "∞" if r["unstable"] is None else f"{r['unstable'] / r['predicted']:.3f}"
+            ratio = f"{r['stable'] / r['predicted']:.3f}–{hi}"
         safe = guard_right(r)
         out.append(
             [
@@ -178,7 +183,7 @@ def limits_table(rows: list[dict]) -> str:
         "zeta",
         "predicted limit [s]",
         "measured stable / unstable [s]",
-        "stable / predicted",
+        "measured limit / predicted (bracket)",
         "guard right",
     ]
     return md_table(headers, out)
@@ -192,7 +197,7 @@ def cost_table(rows: list[dict]) -> str:
             fmt_s(r["first_s"]),
             fmt_s(r["again_s"]),
             r["lanczos_steps"],
-            f"{r['bound'] / r['omega']:.2f}",
+            "–" if r["bound"] is None else f"{r['bound'] / r['omega']:.2f}",
             fmt_s(r["step_s"]),
             f"{r['again_s'] / r['step_s']:.0f}",
         ]
@@ -249,8 +254,9 @@ and the smallest unstable one (with why it failed). "guard right": the smallest 
 
 ## 2. Cost of the estimate
 
-Once per stepper (the guard caches it; `auto_substeps` shares it). Springs need no kernel; the membrane
-and bending terms compile their element kernels on the first call.
+Once per stepper (the guard caches it; `auto_substeps` shares it). Springs need no kernel (NumPy blocks);
+the fabric's estimate multiplies by differences of the total force, whose kernel compiles on the first
+call (blocks=True: the terms' element Hessians instead, which compile for much longer).
 
 {cost_table(cost)}
 """
