@@ -454,7 +454,11 @@ def guard(stepper, state, dt: float) -> None:
     est = _guard_estimate(stepper, state)
     if est is None:
         return
-    limit = stability_limit(method, est.omega, est.zeta)
+    cached = getattr(stepper, "stability_limit", None)  # (estimate, limit): the region scan costs ms
+    if cached is None or cached[0] is not est:
+        cached = (est, stability_limit(method, est.omega, est.zeta))
+        stepper.stability_limit = cached
+    limit = cached[1]
     if limit is None or dt <= GUARD_SAFETY * limit:
         return
     n = math.ceil(dt / (AUTO_SAFETY * limit)) if limit > 0.0 else None

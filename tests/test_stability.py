@@ -194,6 +194,13 @@ def test_guard_estimates_once_per_stepper(monkeypatch):
     for dt in (1e-4, 1e-4, 2e-4, 1e-4):
         integ.step(model, state, dt)
     assert len(calls) == 1
+    # The limit is computed once too: a later dt change costs a comparison only.
+    limits = []
+    real_limit = stability.stability_limit
+    monkeypatch.setattr(stability, "stability_limit", lambda *a, **k: limits.append(1) or real_limit(*a, **k))
+    for dt in (3e-4, 1e-4):
+        integ.step(model, state, dt)
+    assert limits == []
     assert integ.stepper_for(model).health.counts["events.unstable_step"] == 0
 
 
