@@ -463,8 +463,9 @@ def guard(stepper, state, dt: float) -> None:
         return
     n = math.ceil(dt / (AUTO_SAFETY * limit)) if limit > 0.0 else None
     advice = f"split it into {n} substeps (substeps='auto')" if n else "use a smaller step"
+    where = "exceeds" if dt > limit else f"is within {1 - GUARD_SAFETY:.0%} of"
     message = (
-        f"{method.name}: dt = {dt:.3g} s exceeds the stability limit {limit:.3g} s of this model "
+        f"{method.name}: dt = {dt:.3g} s {where} the stability limit {limit:.3g} s of this model "
         f"(highest frequency {est.omega:.4g} rad/s, damping ratio {est.zeta:.2g}); {advice}, or use "
         "implicit_euler"
     )

@@ -249,6 +249,15 @@ def test_pointwise_kernel_matches_numpy():
     np.testing.assert_allclose(c_ti, c_np, rtol=1e-10, atol=1e-12)
 
 
+def test_guard_margin_message():
+    # A step between GUARD_SAFETY x limit and the limit is reported as close to it, not as beyond it.
+    model = spring_pair(0.0, 0.01, 1e3)
+    integ = ta.make_integrator("symplectic_euler")
+    limit = stability.stability_limit("symplectic_euler", math.sqrt(1e3 / 0.01))
+    with pytest.warns(ta.StabilityWarning, match="is within 5% of the stability limit"):
+        integ.step(model, model.state(), 0.98 * limit)
+
+
 def test_guard_skips_models_it_cannot_linearise(monkeypatch):
     # A term the estimate does not know: the run goes on, one "stability_unchecked" event says why.
     def unknown(*args):
