@@ -3,11 +3,13 @@
 Scenes are the examples that the CLI runs, the tests run for a few frames, and the benchmarks time
 (Newton's "examples are demos, tests and benchmarks at once")."""
 
+import numbers
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ..errors import ParameterError
 from ..integrators import Integrator
 from ..io.export import (
     area_weighted_normals,
@@ -19,6 +21,7 @@ from ..io.export import (
 )
 from ..model import Model
 from ..render import fit_camera, render_png
+from ..stability import auto_substeps
 from ..state import ParticleSnapshot, State
 
 # Cloth faces: the front (normal towards the camera) and the back in two colours, so folds read clearly;
@@ -33,11 +36,30 @@ KEY_AMBIENT = 0.45
 GUIDE_COLOR = (0.35, 0.4, 0.45)
 
 
+def check_substeps(substeps):
+    """substeps: a positive integer or "auto" (ParameterError otherwise)."""
+    if substeps == "auto":
+        return substeps
+    if isinstance(substeps, bool) or not isinstance(substeps, numbers.Integral) or substeps < 1:
+        raise ParameterError(f"substeps must be a positive integer or 'auto', got {substeps!r}")
+    return int(substeps)
+
+
+def frame_step(frame_dt: float, substeps) -> float:
+    """The Scene's dt for `substeps` per frame of frame_dt [s]: frame_dt / substeps, or frame_dt itself
+    for "auto" (the Scene splits it)."""
+    return frame_dt if check_substeps(substeps) == "auto" else frame_dt / substeps
+
+
 @dataclass
 class Scene:
     """name, description; model, state, integrator; dt [s] per step, substeps per frame; bounds: (lo, hi)
     [m] of the region worth looking at; point_radius [m] for rendering; options: the scene's own settings;
-    frames: the demo's default length."""
+    frames: the demo's default length.
+
+    substeps="auto": dt is then the frame's duration [s], split into the smallest number of substeps
+    whose step is within the integrator's stability limit on this model (stability.auto_substeps); the
+    choice (count, highest frequency, limit) is kept in `substeps_auto` and in settings()."""
 
     name: str
     description: str
@@ -54,6 +76,13 @@ class Scene:
     guides: tuple | None = None
     view: tuple = (0.6, 0.45, 1.0)
     zoom: float = 1.0
+    substeps_auto: dict | None = None  # how substeps="auto" chose the substeps (None: fixed by the scene)
+
+    def __post_init__(self):
+        check_substeps(self.substeps)
+        if self.substeps == "auto":
+            n, self.substeps_auto = auto_substeps(self.model, self.integrator, self.dt, state=self.state)
+            self.dt, self.substeps = self.dt / n, n
 
     @property
     def frame_dt(self) -> float:
@@ -145,6 +174,7 @@ class Scene:
             "dt": self.dt,
             "substeps": self.substeps,
             "frame_dt": self.frame_dt,
+            "substeps_auto": self.substeps_auto,
             "integrator": self.integrator.settings(),
             "model": self.model.settings,
             "options": self.options,

@@ -11,7 +11,7 @@ import numpy as np
 
 from .. import Builder, ClothMaterial, FabricMaterial, make_integrator
 from ..cloth import explicit_step_limit, validate
-from .base import Scene
+from .base import Scene, frame_step
 
 FRAME_DT = 1 / 60  # [s]
 IMPLICIT_SUBSTEPS = 4  # dt = 1/240 s: implicit Euler is stable at any step, this keeps its damping low
@@ -72,12 +72,14 @@ def build(
     size: float = 1.0,
     air_damping: float = 0.3,
     material: str = "springs",
+    substeps: int | str | None = None,
 ) -> Scene:
     """A horizontal `size` [m] square sheet of `resolution` x `resolution` vertices at 1.2 m, pinned at
     the two corners of its back edge (z = -size/2); air_damping [1/s]: linear drag per unit mass;
     bend_stiffness [N/m]: 5x the ClothMaterial default, so compression buckles into folds rather than
     grid-scale ripples. Other material values are ClothMaterial's defaults. material: "springs" or
-    "membrane" (a continuum fabric of the same stretch stiffness, FABRIC)."""
+    "membrane" (a continuum fabric of the same stretch stiffness, FABRIC). substeps per 1/60 s frame: None
+    (this demo's rule, substeps_for), a count, or "auto" (the smallest stable count, Scene)."""
     n = int(resolution)
     material_name = material
     material = material_for(material, bend_stiffness)
@@ -97,7 +99,8 @@ def build(
     if air_damping > 0.0:
         b.add_force_drag(air_damping * vertex_mass)
     model = b.finalize(seed=seed)
-    substeps = substeps_for(integrator, material, vertex_mass, size / (n - 1))
+    if substeps is None:
+        substeps = substeps_for(integrator, material, vertex_mass, size / (n - 1))
     pins = np.array([[-half, height, -half], [half, height, -half]])
     # The sheet swings through the vertical plane z = -size/2 and most of the way back up behind it.
     lo, hi = (-half - 0.1, height - size - 0.1, -half - 0.8 * size), (half + 0.1, height + 0.1, half - 0.2)
@@ -107,7 +110,7 @@ def build(
         model=model,
         state=model.state(),
         integrator=cloth_integrator(integrator),
-        dt=FRAME_DT / substeps,
+        dt=frame_step(FRAME_DT, substeps),
         substeps=substeps,
         bounds=(lo, hi),
         point_radius=0.005,

@@ -8,7 +8,7 @@ normals."""
 import numpy as np
 
 from .. import Builder
-from .base import Scene
+from .base import Scene, frame_step
 from .cloth import FRAME_DT, cloth_integrator, material_for, substeps_for
 
 
@@ -45,11 +45,13 @@ def build(
     ball_friction: float = 0.3,
     floor_friction: float = 0.5,
     material: str = "springs",
+    substeps: int | str | None = None,
 ) -> Scene:
     """A horizontal `size` [m] square cloth of `resolution` x `resolution` vertices, released at rest at
     `height` [m] above a ball of `ball_radius` [m] on the floor (y = 0), a little off the cloth's centre
     so the folds are not symmetric; frictions are Coulomb coefficients; bend_stiffness [N/m] as in the
-    cloth demo; material: "springs" or "membrane" as in the cloth demo."""
+    cloth demo; material: "springs" or "membrane" as in the cloth demo; substeps per 1/60 s frame: None (the
+    cloth demo's rule), a count, or "auto" (the smallest stable count, Scene)."""
     n = int(resolution)
     material_name = material
     material = material_for(material, bend_stiffness)
@@ -69,7 +71,8 @@ def build(
     b.add_collider_plane(normal=(0.0, 1.0, 0.0), offset=0.0, restitution=0.0, friction=floor_friction)
     model = b.finalize(seed=seed)
     vertex_mass = material.density * (size / (n - 1)) ** 2
-    substeps = substeps_for(integrator, material, vertex_mass, size / (n - 1))
+    if substeps is None:
+        substeps = substeps_for(integrator, material, vertex_mass, size / (n - 1))
     reach = half + 0.15
     lo, hi = (-reach, 0.0, -reach), (reach, 0.75 * height, reach)  # framed for the draped cloth
     floor = np.array([[-reach, 0.0, -reach], [reach, 0.0, -reach], [reach, 0.0, reach], [-reach, 0.0, reach]])
@@ -81,7 +84,7 @@ def build(
         model=model,
         state=model.state(),
         integrator=cloth_integrator(integrator),
-        dt=FRAME_DT / substeps,
+        dt=frame_step(FRAME_DT, substeps),
         substeps=substeps,
         bounds=(lo, hi),
         point_radius=0.005,

@@ -9,7 +9,7 @@ import numpy as np
 
 from .. import Builder, FabricMaterial, make_integrator
 from ..cloth import explicit_step_limit
-from .base import Scene
+from .base import Scene, frame_step
 
 FRAME_DT = 1 / 60  # [s]
 SUBSTEPS = 4
@@ -38,10 +38,12 @@ def build(
     gust: float = 0.35,
     youngs_modulus: float = 2.0e3,
     bending_stiffness: float = 2.0e-4,
+    substeps: int | str | None = None,
 ) -> Scene:
     """A `width` x `height` [m] flag of `resolution` vertices along its width (square cells), hanging from
     a vertical pole at x = 0 (every vertex of its left edge pinned), in a wind [m/s] whose speed swings by
-    `gust` (a fraction) at 0.7 Hz."""
+    `gust` (a fraction) at 0.7 Hz. substeps per 1/60 s frame: None (this demo's rule), a count, or "auto"
+    (the smallest stable count, Scene)."""
     nx = int(resolution)
     ny = max(2, round((nx - 1) * height / width) + 1)
     top = 2.5
@@ -63,11 +65,12 @@ def build(
     model = b.finalize(seed=seed)
     if integrator == "implicit_euler":
         integ = make_integrator(integrator, linear_solver="pcg", tol=1e-3, max_iterations=200)
-        substeps = SUBSTEPS
+        rule = SUBSTEPS
     else:  # explicit methods: half the membrane's damped stability limit
         integ = make_integrator(integrator, check_every=20)
         limit = explicit_step_limit(material, width / (nx - 1))
-        substeps = max(SUBSTEPS, int(np.ceil(FRAME_DT / (0.5 * limit))))
+        rule = max(SUBSTEPS, int(np.ceil(FRAME_DT / (0.5 * limit))))
+    substeps = rule if substeps is None else substeps
     pole = (np.array([[0.0, top - 1.6 * height, 0.0]]), np.array([[0.0, top + 0.1, 0.0]]))
     lo, hi = (-0.1, top - 1.3 * height, -0.4 * width), (1.05 * width, top + 0.1, 0.4 * width)
     return Scene(
@@ -76,7 +79,7 @@ def build(
         model=model,
         state=model.state(),
         integrator=integ,
-        dt=FRAME_DT / substeps,
+        dt=frame_step(FRAME_DT, substeps),
         substeps=substeps,
         bounds=(lo, hi),
         point_radius=0.004,
