@@ -6,6 +6,7 @@ Taichi is never initialised on import: call `taichi_anim.init(arch=...)`, or let
 start it on the CPU.
 """
 
+from . import stability
 from .blobs import BlobField, BlobMesh, IsosurfaceMethod
 from .builder import Builder
 from .cloth import Cloth, ClothMaterial, FabricMaterial
@@ -68,6 +69,7 @@ __all__ = [
     "SolverWarning",
     "StabilityError",
     "StabilityWarning",
+    "stability",
     "AeroTriangles",
     "AnchorSpring",
     "BendingDihedral",

@@ -47,10 +47,25 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="cloth demos: mass-spring cloth or a continuum membrane + bending (default: springs)",
     )
+    d.add_argument(
+        "--substeps",
+        default=None,
+        help="cloth demos: steps per frame, or 'auto' for the fewest within the method's stability limit",
+    )
     d.add_argument("--no-export", action="store_true", help="do not write per-frame files")
     d.add_argument("--view", action="store_true", help="show a live GGUI window (needs a display and Vulkan)")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
+
+
+SUBSTEP_SCENES = ("cloth", "drape", "flag")
+
+
+def _int(name: str, text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise ParameterError(f"{name} must be an integer or 'auto', got {text!r}") from None
 
 
 def _demo(args) -> int:
@@ -90,6 +105,13 @@ def _demo(args) -> int:
             )
             return 2
         options["material"] = args.material
+    if args.substeps is not None:
+        if args.name not in SUBSTEP_SCENES:
+            print(
+                f"taichi-anim: --substeps applies to the {', '.join(SUBSTEP_SCENES)} demos", file=sys.stderr
+            )
+            return 2
+        options["substeps"] = args.substeps if args.substeps == "auto" else _int("--substeps", args.substeps)
     scene = make_scene(args.name, **options)
     if args.view:
         from .viewer import Viewer
