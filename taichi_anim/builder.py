@@ -387,7 +387,7 @@ class Builder:
             raise ParameterError(f"hi must exceed lo on every axis, got lo={lo.tolist()}, hi={hi.tolist()}")
         e = validate.in_range("restitution", restitution, 0.0, 1.0)
         mu = validate.non_negative("friction", friction)
-        if solid:
+        if validate.flag("solid", solid):
             self._colliders.append(ColliderSolidBox(tuple(lo), tuple(hi), e, mu, motion))
             return
         if motion is None:
@@ -521,7 +521,7 @@ class Builder:
             iterations=validate.count("iterations", iterations, 1),
             relaxation=validate.in_range("relaxation", relaxation, 1.0, 2.0),
             rest_speed=validate.non_negative("rest_speed", rest_speed),
-            continuous=bool(continuous),
+            continuous=validate.flag("continuous", continuous),
             max_substeps=validate.count("max_substeps", max_substeps, 1),
             neighbor_search=neighbor_search,
         )

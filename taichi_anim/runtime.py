@@ -19,6 +19,7 @@ import taichi as ti
 from taichi.lang import impl
 
 from . import validate
+from .errors import ParameterError
 
 ARCHS = ("cpu", "gpu", "cuda", "vulkan", "auto")
 PRECISIONS = ("f32", "f64")
@@ -153,7 +154,10 @@ def init(
     if cpu_threads is not None:
         opts["cpu_max_num_threads"] = validate.count("cpu_threads", cpu_threads, 1)
     opts.update(taichi_options)
-    ti.init(**opts)
+    try:
+        ti.init(**opts)
+    except KeyError as e:  # Taichi's answer to an option it does not know
+        raise ParameterError(f"init: {e.args[0] if e.args else e}") from None
     running = backend_name()
     _choice = {"requested": arch, "reason": reason}
     if running != chosen:

@@ -72,6 +72,14 @@ def count(name: str, value: int, minimum: int = 0, maximum: int = INT32_MAX) -> 
     return int(value)
 
 
+def flag(name: str, value) -> bool:
+    """Return `value` as a bool if it is one (or 0 / 1), else raise: "no" or "False" as strings would
+    otherwise read as True."""
+    if isinstance(value, bool | np.bool_) or (isinstance(value, int | np.integer) and value in (0, 1)):
+        return bool(value)
+    raise ParameterError(f"{name} must be True or False, got {value!r}")
+
+
 def real_array(name: str, value) -> np.ndarray:
     """`value` as a float64 array if it holds real numbers (not bools, strings or None), else raise."""
     try:

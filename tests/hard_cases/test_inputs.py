@@ -148,6 +148,13 @@ CALL_TIME = [
     ("aerodynamics unknown option", lambda: aero(bogus=1), ["aerodynamics", "bogus"]),
     ("aerodynamics gust NaN", lambda: aero(gust_amplitude=NAN), ["gust_amplitude", "nan"]),
     ("membrane damping NaN", lambda: membrane(damping=NAN), ["damping", "nan"]),
+    ("continuous 'no'", lambda: two_particles().add_sphere_contacts(continuous="no"), ["continuous", "'no'"]),
+    (
+        "solid 'yes'",
+        lambda: two_particles().add_collider_box((0, 0, 0), (1, 1, 1), solid="yes"),
+        ["solid", "'yes'"],
+    ),
+    ("init with an unknown Taichi option", lambda: ta.init("cpu", bogus=1), ["bogus"]),
 ]
 
 
