@@ -248,7 +248,8 @@ def _fits(name: str, value, big: float, dtype_name: str, depth: int = 0) -> None
     a = np.asarray(value)
     if a.dtype.kind != "f" or a.size == 0:
         return
-    over = np.abs(a) > big  # NaN compares False: non-finite input is rejected where it is given
+    # Only finite values: NaN and inf are rejected where they are given, and inf is a sentinel inside.
+    over = np.isfinite(a) & (np.abs(a) > big)
     if over.any():
         where = tuple(int(i) for i in np.argwhere(over)[0]) if a.ndim else ()
         at = f" at index {where if len(where) > 1 else where[0]}" if where else ""
