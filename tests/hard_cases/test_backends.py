@@ -61,8 +61,8 @@ def test_cli_arch_auto_runs_one_frame(tmp_path):
     backend that ran and the arch that was asked for."""
     out_dir = tmp_path / "out"
     out = run_python(
-        "", "-m", "taichi_anim", "demo", "fountain", "--arch", "auto", "--frames", "1", "--quiet",
-        "--out", str(out_dir),
+        "", "-m", "taichi_anim", "demo", "fountain", "--arch", "auto", "--frames", "1",
+        "--quiet", "--no-export", "--out", str(out_dir),
     )  # fmt: skip
     assert out.returncode == 0, (out.returncode, out.stderr[-2000:])
     record = json.loads((out_dir / "run.json").read_text())
