@@ -3,6 +3,7 @@ field once, exactly sized (Warp's `ModelBuilder.finalize()`). The engine is Y-up
 
 from __future__ import annotations
 
+import inspect
 import math
 
 import numpy as np
@@ -15,7 +16,8 @@ from .errors import ParameterError
 from .model import Model
 from .particles import Emitter, EmitterShape
 from .particles.emitters import EmitterSettings
-from .runtime import ensure_initialized
+from .rng import SEED_LIMIT
+from .runtime import ensure_initialized, np_float
 from .terms import AnchorSpring, Drag, Gravity
 
 
@@ -57,15 +59,10 @@ class Builder:
         v = np.zeros_like(x) if v is None else validate.finite_array("v", np.atleast_2d(v), (3,))
         if v.shape != x.shape:
             raise ParameterError(f"v must have the shape of x {x.shape}, got {v.shape}")
-        m = np.broadcast_to(np.asarray(mass, dtype=np.float64), (len(x),)).copy()
+        m = validate.per_element("mass", mass, len(x))
         if not np.all(np.isfinite(m)) or np.any(m < 0):
             raise ParameterError(f"mass must be finite and >= 0 (0 pins a particle), got {mass!r}")
-        r = np.asarray(radius, dtype=np.float64)
-        if r.ndim > 1 or (r.ndim == 1 and len(r) != len(x)):
-            raise ParameterError(
-                f"radius must be a scalar or one value per particle ({len(x)}), got shape {r.shape}"
-            )
-        r = np.broadcast_to(r, (len(x),)).copy()
+        r = validate.per_element("radius", radius, len(x))
         if not np.all(np.isfinite(r)) or np.any(r < 0):
             raise ParameterError(f"radius must be finite and >= 0, got {radius!r}")
         start = self.particle_count
@@ -150,7 +147,7 @@ class Builder:
         rest = np.linalg.norm(x[p[:, 0]] - x[p[:, 1]], axis=1) if rest_length is None else rest_length
         arrays = []
         for name, value in (("stiffness", stiffness), ("damping", damping), ("rest_length", rest)):
-            a = np.broadcast_to(np.asarray(value, dtype=np.float64), (s,)).copy()
+            a = validate.per_element(name, value, s, "spring")
             if not np.all(np.isfinite(a)) or np.any(a < 0):
                 raise ParameterError(f"{name} must be finite and >= 0, got {value!r}")
             arrays.append(a)
@@ -163,9 +160,7 @@ class Builder:
             raise ParameterError(f"material must be a ClothMaterial or a FabricMaterial, got {material!r}")
         thickness = validate.positive("thickness", thickness)
         nv = len(vertices)
-        pin = np.unique(np.asarray(pinned, dtype=np.int64).reshape(-1))
-        if pin.size and (pin.min() < 0 or pin.max() >= nv):
-            raise ParameterError(f"pinned must hold vertex indices in [0, {nv}), got {pin.tolist()[:8]}")
+        pin = np.unique(validate.index_list("pinned", pinned, nv, "cloth vertices"))
         mass = geometry.lumped_masses(vertices, triangles, material.density)
         mass[pin] = 0.0  # inverse mass 0: the vertex is kinematic
         v = np.tile(np.asarray(validate.vec3("velocity", velocity)), (nv, 1))
@@ -206,7 +201,9 @@ class Builder:
         from .terms.membrane import MembraneStVK
 
         tri = self._cloth(cloth).triangles
+        validate.options("membrane", options, inspect.signature(MembraneStVK).parameters)
         validate.positive("youngs_modulus", options.get("youngs_modulus", 1.0))
+        validate.non_negative("damping", options.get("damping", 0.0))
         poisson = validate.non_negative("poisson_ratio", options.get("poisson_ratio", 0.0))
         if poisson >= 0.5:
             raise ParameterError(f"poisson_ratio must lie in [0, 0.5), got {poisson!r}")
@@ -248,6 +245,9 @@ class Builder:
             lift_coefficient=lift_coefficient,
             **options,
         )
+        validate.options("aerodynamics", options, ("gust_amplitude", "gust_frequency"))
+        validate.in_range("gust_amplitude", options.get("gust_amplitude", 0.0), 0.0, 1.0)
+        validate.non_negative("gust_frequency", options.get("gust_frequency", 0.0))
         validate.vec3("wind", wind)
         validate.positive("density", density)
         validate.non_negative("drag_coefficient", drag_coefficient)
@@ -306,8 +306,8 @@ class Builder:
             mass=validate.positive("mass", mass),
             particle_radius=validate.non_negative("particle_radius", particle_radius),
             capacity=capacity,
-            color_start=validate.vec3("color_start", color_start),
-            color_end=validate.vec3("color_end", color_end),
+            color_start=tuple(float(c) for c in validate.colors("color_start", [color_start], 1)[0]),
+            color_end=tuple(float(c) for c in validate.colors("color_end", [color_end], 1)[0]),
         )
         self._emitters.append(settings)
         return len(self._emitters) - 1
@@ -331,9 +331,7 @@ class Builder:
     ) -> None:
         """Damped spring from `particle` to a fixed `anchor` [m]: stiffness [N/m], rest_length [m],
         damping [kg/s] along the spring. One spring per particle."""
-        n = self.particle_count
-        if not (0 <= int(particle) < n):
-            raise ParameterError(f"particle must be an index in [0, {n}), got {particle!r}")
+        particle = int(validate.index_list("particle", [particle], self.particle_count)[0])
         if int(particle) in self._anchored:
             raise ParameterError(f"particle {particle} already has an anchor spring")
         self._anchor_springs.append(
@@ -362,7 +360,7 @@ class Builder:
         self._colliders.append(
             ColliderPlane(
                 validate.unit3("normal", normal),
-                float(offset),
+                validate.finite("offset", offset),
                 validate.in_range("restitution", restitution, 0.0, 1.0),
                 validate.non_negative("friction", friction),
                 _motion(motion),
@@ -389,7 +387,7 @@ class Builder:
             raise ParameterError(f"hi must exceed lo on every axis, got lo={lo.tolist()}, hi={hi.tolist()}")
         e = validate.in_range("restitution", restitution, 0.0, 1.0)
         mu = validate.non_negative("friction", friction)
-        if solid:
+        if validate.flag("solid", solid):
             self._colliders.append(ColliderSolidBox(tuple(lo), tuple(hi), e, mu, motion))
             return
         if motion is None:
@@ -523,7 +521,7 @@ class Builder:
             iterations=validate.count("iterations", iterations, 1),
             relaxation=validate.in_range("relaxation", relaxation, 1.0, 2.0),
             rest_speed=validate.non_negative("rest_speed", rest_speed),
-            continuous=bool(continuous),
+            continuous=validate.flag("continuous", continuous),
             max_substeps=validate.count("max_substeps", max_substeps, 1),
             neighbor_search=neighbor_search,
         )
@@ -573,7 +571,7 @@ class Builder:
 
     def finalize(self, *, seed: int = 0) -> Model:
         """Allocate the model's fields (initialises Taichi on the CPU if the application has not)."""
-        seed = validate.count("seed", seed, 0)
+        seed = validate.count("seed", seed, 0, SEED_LIMIT - 1)
         if self.particle_count == 0 and not self._emitters:
             raise ParameterError("the scene is empty: add particles or an emitter before finalize()")
         ensure_initialized()
@@ -637,10 +635,20 @@ class Builder:
             "trail_length": self._trail_length,
             "seed": seed,
         }
+        element_terms = [make(len(x_all), x_all) for make in self._element_terms]
+        v_all, m_all = np.concatenate(v), np.concatenate(m)
+        # Every float the fields will hold must fit the precision they are allocated in (not become inf).
+        validate.fits_float(
+            dict(x=x_all, v=v_all, mass=m_all, radius=r_all, springs=springs or {}, forces=terms,
+                 anchor_springs=self._anchor_springs, element_terms=element_terms, colliders=self._colliders,
+                 emitters=settings["emitters"], attachments=self._attachments),
+            np_float(),
+        )  # fmt: skip
+        validate.mass_fits("mass", m_all, np_float())
         return Model(
             x=x_all,
-            v=np.concatenate(v),
-            mass=np.concatenate(m),
+            v=v_all,
+            mass=m_all,
             radius=r_all,
             terms=terms,
             colliders=self._colliders,
@@ -650,7 +658,7 @@ class Builder:
             settings=settings,
             contacts=contacts,
             springs=springs,
-            element_terms=[make(len(x_all), x_all) for make in self._element_terms],
+            element_terms=element_terms,
             triangles=triangles,
             self_contact=self._self_contact,
             attachments=self._attachments,

@@ -6,6 +6,10 @@ Hash: Chris Wellons' "lowbias32" integer finaliser (2018), chained over the coun
 
 import taichi as ti
 
+# The seed enters the hash as one u32: seeds must lie in [0, SEED_LIMIT). A larger seed would be cut to
+# its low 32 bits and silently repeat a smaller seed's run, so Builder.finalize rejects it instead.
+SEED_LIMIT = 2**32
+
 
 @ti.func
 def hash_u32(x: ti.u32) -> ti.u32:

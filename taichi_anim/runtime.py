@@ -1,16 +1,114 @@
-"""Taichi initialisation: `init(arch=...)` for convenience; the library never calls `ti.init` on import."""
+"""Taichi initialisation: `init(arch=...)` for convenience; the library never calls `ti.init` on import.
+
+"gpu" and "auto" do not hand Taichi its own `ti.gpu` list: Taichi checks each GPU backend in that list in
+the calling process, and on a machine without a GPU its OpenGL check calls a null function pointer
+(`initialize_opengl`, after cuda, metal and vulkan were found missing), killing the process with SIGSEGV.
+Instead each candidate backend is started once in a child process (`probe_arch`), and only a backend that
+started there, and ran a kernel, is started here; otherwise the CPU runs, with a warning.
+"""
 
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
+import time
+import warnings
 
 import taichi as ti
 from taichi.lang import impl
 
 from . import validate
+from .errors import ParameterError
 
 ARCHS = ("cpu", "gpu", "cuda", "vulkan", "auto")
 PRECISIONS = ("f32", "f64")
+
+# The GPU backends "gpu" and "auto" try, in order: those the engine is tested on (tests/test_backends.py),
+# and Metal on macOS. OpenGL is left out: Taichi's OpenGL check is the one that crashes (see above).
+GPU_CANDIDATES = ("cuda", "vulkan", "metal") if sys.platform == "darwin" else ("cuda", "vulkan")
+# Vulkan drivers that run on the CPU (Mesa's lavapipe reports itself as "llvmpipe"): ~10x slower than
+# Taichi's own CPU backend on a cloth step, so "gpu"/"auto" do not count them as a GPU.
+SOFTWARE_VULKAN = ("llvmpipe", "lavapipe", "swiftshader")
+PROBE_TIMEOUT_S = 60.0
+
+_PROBE_SCRIPT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "device_probe.py")
+
+_probes: dict[str, dict] = {}
+_choice: dict | None = None
+
+
+def probe_arch(arch: str, *, timeout: float = PROBE_TIMEOUT_S) -> dict:
+    """Whether Taichi can start `arch` ("cuda", "vulkan", "metal", ...) and run a kernel on it, tried in a
+    child process so that a crash cannot take this one down. Returns {"arch", "ok", "detail",
+    "seconds"}; the answer is cached for the life of the process."""
+    if arch in _probes:
+        return _probes[arch]
+    t0 = time.perf_counter()
+    try:
+        run = subprocess.run(
+            [sys.executable, _PROBE_SCRIPT, arch],
+            capture_output=True,
+            text=True,
+            timeout=timeout,
+        )
+        ok, detail = _probe_verdict(arch, run.returncode, run.stdout + run.stderr)
+    except subprocess.TimeoutExpired:
+        ok, detail = False, f"no answer within {timeout:g} s"
+    except OSError as e:
+        ok, detail = False, f"could not start the probe: {e}"
+    result = {"arch": arch, "ok": ok, "detail": detail, "seconds": round(time.perf_counter() - t0, 3)}
+    _probes[arch] = result
+    return result
+
+
+def _probe_verdict(arch: str, returncode: int, output: str) -> tuple[bool, str]:
+    """(ok, detail) from the probe's exit status and output (see device_probe.py)."""
+    if returncode < 0:
+        return False, f"Taichi crashed while starting {arch} (signal {-returncode})"
+    marks = [line.split()[1:] for line in output.splitlines() if line.startswith("TAICHI_ANIM_PROBE ")]
+    started = [m[1] for m in marks if m[0] == "started"]
+    if returncode != 0 or not started:
+        errors = [line.strip() for line in output.splitlines() if "Error" in line or "error" in line]
+        why = (errors or ["no output"])[-1][:200]
+        return False, f"Taichi could not start {arch} (exit status {returncode}: {why})"
+    if started[0] != arch:
+        # Taichi's own warning says why (e.g. "libcuda.so lib not found."); its fallback notice does not.
+        said = [
+            line.split("] ", 2)[-1].strip()
+            for line in output.splitlines()
+            if line.startswith("[W ") and "adaptive_arch_select" not in line
+        ]
+        why = f": {said[0]}" if said else ""
+        return False, f"Taichi found no {arch} device{why}"
+    if ["kernel", "ok"] not in marks:
+        return False, f"{arch} started but a test kernel gave a wrong result"
+    if arch == "vulkan":
+        low = output.lower()
+        software = next((name for name in SOFTWARE_VULKAN if name in low), None)
+        if software:
+            return False, f"the only Vulkan device is a software renderer on the CPU ({software})"
+    return True, f"{arch} started and ran a kernel"
+
+
+def _pick_gpu(requested: str) -> tuple[str, str]:
+    """The first GPU backend that passes its probe, else "cpu"; and why."""
+    failures = []
+    for arch in GPU_CANDIDATES:
+        probe = probe_arch(arch)
+        if probe["ok"]:
+            return arch, f"{arch} found by probe ({probe['seconds']:.1f} s)"
+        failures.append(f"{arch}: {probe['detail']}")
+    return "cpu", "no GPU found (" + "; ".join(failures) + ")"
+
+
+def arch_choice() -> dict:
+    """How the running backend was chosen: {"requested": the arch asked of `init` (None if the
+    application initialised Taichi itself), "chosen": the backend running now, "reason": why, "probes":
+    the device probes run in this process (arch, ok, detail, seconds)}. For run records."""
+    base = _choice or {"requested": None, "reason": "Taichi was initialised by the application"}
+    running = backend_name() if is_initialized() else None
+    return {**base, "chosen": running, "probes": [dict(p) for p in _probes.values()]}
 
 
 def is_initialized() -> bool:
@@ -29,14 +127,23 @@ def init(
 ) -> str:
     """Initialise Taichi and return the name of the backend that actually runs.
 
-    arch: "cpu" (default), "gpu" (any GPU Taichi finds, else CPU), "cuda", "vulkan", or "auto" (GPU if
-    present, else CPU). precision: "f32" or "f64" for every float field the engine allocates.
-    cpu_threads pins the CPU thread count (1 makes float atomics reproducible run to run).
-    Calling it again resets Taichi: fields allocated before become invalid.
+    arch: "cpu" (default), "cuda", "vulkan", or "gpu" / "auto" (the first of CUDA and Vulkan, and Metal on
+    macOS, that starts and runs a kernel in a child process, ~1-2 s once per process; else the CPU,
+    with a RuntimeWarning saying why; a Vulkan driver that runs on the CPU does not count as a GPU).
+    `arch_choice()` records what was asked, what runs and why. precision: "f32" or "f64" for every
+    float field the engine allocates. cpu_threads pins the CPU thread count (1 makes float atomics
+    reproducible run to run). Calling it again resets Taichi: fields allocated before become invalid.
     """
+    global _choice
     validate.choice("arch", arch, ARCHS)
     validate.choice("precision", precision, PRECISIONS)
-    target = {"cpu": ti.cpu, "gpu": ti.gpu, "auto": ti.gpu, "cuda": ti.cuda, "vulkan": ti.vulkan}[arch]
+    if arch in ("gpu", "auto"):
+        chosen, reason = _pick_gpu(arch)
+        if chosen == "cpu":
+            warnings.warn(f"arch={arch!r}: running on the CPU: {reason}", RuntimeWarning, stacklevel=2)
+    else:
+        chosen, reason = arch, "requested"
+    target = {"cpu": ti.cpu, "cuda": ti.cuda, "vulkan": ti.vulkan, "metal": ti.metal}[chosen]
     opts = dict(
         arch=target,
         default_fp=ti.f64 if precision == "f64" else ti.f32,
@@ -47,11 +154,20 @@ def init(
     if cpu_threads is not None:
         opts["cpu_max_num_threads"] = validate.count("cpu_threads", cpu_threads, 1)
     opts.update(taichi_options)
-    ti.init(**opts)
+    try:
+        ti.init(**opts)
+    except KeyError as e:  # Taichi's answer to an option it does not know
+        raise ParameterError(f"init: {e.args[0] if e.args else e}") from None
     running = backend_name()
-    if arch in ("cuda", "vulkan") and running != arch:
-        raise RuntimeError(
-            f"arch={arch!r} was requested but Taichi could not start it (running on {running})"
+    _choice = {"requested": arch, "reason": reason}
+    if running != chosen:
+        if arch in ("cuda", "vulkan"):
+            raise RuntimeError(
+                f"arch={arch!r} was requested but Taichi could not start it (running on {running})"
+            )
+        _choice["reason"] = f"{reason}, but Taichi could not start {chosen} here"
+        warnings.warn(
+            f"arch={arch!r}: running on {running}: {_choice['reason']}", RuntimeWarning, stacklevel=2
         )
     return running
 

@@ -5,7 +5,21 @@ import numpy as np
 import pytest
 
 import taichi_anim as ta
+from taichi_anim import runtime
 from taichi_anim.scenes import make_scene
+
+
+@pytest.mark.gpu
+@pytest.mark.parametrize("arch", ["auto", "gpu"])
+def test_auto_and_gpu_choose_the_device_that_passes_its_probe(arch):
+    """On a machine with a GPU, "auto" and "gpu" run on the first of CUDA and Vulkan whose probe
+    passes (the fallback to the CPU is tested in hard_cases/test_backends.py)."""
+    found = [a for a in runtime.GPU_CANDIDATES if runtime.probe_arch(a)["ok"]]
+    if not found:
+        pytest.skip("no GPU backend starts here")
+    assert ta.init(arch) == found[0]
+    choice = runtime.arch_choice()
+    assert choice["requested"] == arch and choice["chosen"] == found[0]
 
 
 def fountain_positions(arch: str, frames: int = 30):
