@@ -8,8 +8,9 @@ output folder records it (status "failed" or "diverged")."""
 
 import argparse
 import sys
+import warnings
 
-from . import runtime
+from . import rng, runtime, validate
 from .errors import ConvergenceError, DivergenceError, OutputError, ParameterError, StabilityError
 from .integrators import INTEGRATORS
 
@@ -89,11 +90,16 @@ def _demo(args) -> int:
         if problem:
             print(f"taichi-anim: --view is not possible here: {problem}", file=sys.stderr)
             return 2
+    validate.count("--seed", args.seed, 0, rng.SEED_LIMIT - 1)  # before a scene seeds NumPy with it
     try:
-        runtime.init(args.arch)
+        with warnings.catch_warnings(record=True) as caught:  # e.g. "gpu" fell back to the CPU: one line
+            warnings.simplefilter("always", RuntimeWarning)
+            runtime.init(args.arch)
     except RuntimeError as e:  # e.g. --arch cuda on a machine without CUDA
         print(f"taichi-anim: error: {e}", file=sys.stderr)
         return 2
+    for w in caught:
+        print(f"taichi-anim: {w.message}", file=sys.stderr)
     options = {"seed": args.seed}
     if args.integrator:
         options["integrator"] = args.integrator
@@ -128,7 +134,7 @@ def _demo(args) -> int:
         export=not args.no_export,
         progress=not args.quiet,
         viewer=viewer,
-        extra_settings={"seed": args.seed, "arch_requested": args.arch},
+        extra_settings={"seed": args.seed, "arch_requested": args.arch, "arch_choice": runtime.arch_choice()},
     )
     if viewer is not None:
         viewer.close()
