@@ -69,8 +69,8 @@ class State:
         self.watch_claim = ti.field(ti.i32, ())
         self.watch_record = ti.Vector.field(3, ti.i32, ())
         self.watch_value = ti.field(float, ())
-        self.watch_limit = ti.Vector.field(8, float, ())
-        self.watch_limit[None] = [0.0, 0.0, 0.0, math.inf, 0.0, 0.0, math.inf, 0.0]
+        self.watch_limit = ti.Vector.field(10, float, ())
+        self.watch_limit[None] = [0.0] * 3 + [math.inf] * 3 + [0.0, 0.0, math.inf, 0.0]
         self.watch_version = -1
         self.energy_start = None  # [J] at the first step the watchdog saw (scenes with an energy)
         self.energy_step = 0  # step of the last energy evaluation
@@ -91,6 +91,7 @@ class State:
         _copy_state(self, into, self.trail_head)
         into.time, into.step_count, into.trail_head = self.time, self.step_count, self.trail_head
         into.emit_carry = list(self.emit_carry)
+        into.energy_start, into.energy_step = self.energy_start, self.energy_step
 
     def restore(self, source: "State") -> None:
         """Return to the state saved in `source` (filled by `self.save(source)`) and clear the

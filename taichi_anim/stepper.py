@@ -44,10 +44,12 @@ class Stepper:
     `policy.max_retries` halvings; "implicit": roll back and redo it with implicit Euler (in 1, 2, ...
     substeps, `max_retries` attempts). A recovery is a "divergence_recovered" event in `health`, and the
     substeps (and method) that worked are kept for the following steps until dt changes. With a recovering
-    policy the watchdog is read after every step (the rollback point is the step's start), and the state
-    is saved into a backup State before each step. A rollback restores the State (see `State.save`); it
-    does not undo solver-side counters and warm starts (adaptive step sizes, a linear solver's previous
-    solution, self-contact statistics), which only affect where the next solve starts."""
+    policy the watchdog is read after every step (the rollback point is the step's start), the energy
+    (where the scene has one) is evaluated every step (`watchdog.energy_every` = 1; a larger value trades
+    recoveries for speed), and the state is saved into a backup State before each step. A rollback
+    restores the State (see `State.save`); it does not undo solver-side counters and warm starts
+    (adaptive step sizes, a linear solver's previous solution, self-contact statistics), which only
+    affect where the next solve starts."""
 
     def __init__(self, model, integrator):
         self.model = model
@@ -73,6 +75,10 @@ class Stepper:
             self._fallback.bind(model)
             self._fallback.health = self.health
         self._recovery = None  # (method, substeps) that recovered, kept until dt changes
+        if recovering:
+            # A step can store energy (a spring stretched past any stable length) before anything moves
+            # fast: only the energy shows it in time to roll back, so it is evaluated every step.
+            self.watchdog.energy_every = 1
         # The sphere-contact solver (its neighbour grid, predictions and sweep buffers), when the scene
         # has sphere contacts.
         opts = model.sphere_contacts
@@ -101,7 +107,6 @@ class Stepper:
         error = self._attempt(state, dt, method, split)
         if error is not None:
             self._recover(state, dt, error, method, split)
-        self.watchdog.check_energy(state)
         if self.self_contact is not None and state.step_count % self.integrator.check_every == 0:
             self.self_contact.read_stats()
 
@@ -110,10 +115,9 @@ class Stepper:
         diverged (non-finite or out-of-bounds particles; energy growth, evaluated every
         `watchdog.energy_every` steps). The runner calls it before exporting a frame, so nothing after a
         bad step is written."""
-        error = self._divergence(state)
+        error = self._divergence(state) or self.watchdog.energy_error(state)
         if error is not None:
             raise error
-        self.watchdog.check_energy(state)
         if self.self_contact is not None:
             self.self_contact.read_stats()
 
@@ -123,12 +127,13 @@ class Stepper:
         return None if count == 0 else self.watchdog.error(state, count)
 
     def _attempt(self, state, dt: float, method, split: int):
-        """Step with `method` in `split` substeps and read the watch: the DivergenceError, or None."""
+        """Step with `method` in `split` substeps and read the watch (and the energy, when due): the
+        DivergenceError, or None."""
         try:
             self._step(state, dt, method, split)
         except DivergenceError as e:  # a method's own verdict (step-size underflow)
             return e
-        return self._divergence(state)
+        return self._divergence(state) or self.watchdog.energy_error(state)
 
     def _recover(self, state, dt: float, error, method, split: int) -> None:
         """Roll back and redo the step as the policy says; raise if no attempt recovers (the state is

@@ -76,13 +76,13 @@ def watch_particle(state: ti.template(), i, x, v, t_end, step):
             value = sx
     elif ti.static(state.watch_bounds):
         lim = state.watch_limit[None]  # see Watchdog.limits
-        reach = lim[3] + t_end * (lim[4] + 0.5 * lim[5] * t_end)
-        d = ti.abs(x - ti.Vector([lim[0], lim[1], lim[2]])).max()
-        vmax = lim[6] + lim[7] * t_end
+        grow = t_end * (lim[6] + 0.5 * lim[7] * t_end)
+        dist = ti.abs(x - ti.Vector([lim[0], lim[1], lim[2]]))
+        vmax = lim[8] + lim[9] * t_end
         s2 = v.norm_sqr()
-        if d > reach:
+        if (dist - ti.Vector([lim[3], lim[4], lim[5]])).max() > grow:
             code = POSITION
-            value = d
+            value = dist.max()
         elif s2 > vmax * vmax:
             code = SPEED
             value = ti.sqrt(s2)
@@ -124,6 +124,10 @@ class Watchdog:
             self.energy_every = validate.count("energy_every", energy_every, 1)
         self.version += 1
 
+    def disable(self) -> None:
+        """Switch every bound off (the non-finite test stays): for studies of unstable methods."""
+        self.configure(extent=math.inf, speed=math.inf, energy_tolerance=math.inf)
+
     # -- deriving the bounds -------------------------------------------------------------------------
 
     def arm(self, state) -> None:
@@ -140,24 +144,28 @@ class Watchdog:
             state.energy_step = state.step_count
 
     def limits(self) -> list:
-        """The kernel's limits: centre (3) [m], L0 [m], v_ref [m/s], |g| [m/s^2] of the extent
-        L(t) = L0 + v_ref t + |g| t^2 / 2; V0 [m/s], |g| [m/s^2] of the speed limit V(t) = V0 + |g| t."""
+        """The kernel's limits: centre c (3) [m], half-sizes s (3) [m], v_ref [m/s], |g| [m/s^2] of the
+        box |x - c| <= s + v_ref t + |g| t^2 / 2 (per axis); V0 [m/s], |g| [m/s^2] of the speed limit
+        V(t) = V0 + |g| t."""
         d = self.derived
-        c, half, v_ref, g = d["centre"], d["extent"], d["v_ref"], d["g"]
-        if self.extent == math.inf:
-            half, v_ref, g = math.inf, 0.0, 0.0
-        elif self.extent is not None:  # a fixed box: no growth in time
-            lo, hi = self.extent
-            c, half, v_ref, g = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo)), 0.0, 0.0
+        c, half, v_ref, g = d["centre"], np.full(3, d["extent"]), d["v_ref"], d["g"]
+        if self.extent is not None:  # a fixed box (or none): no growth in time
+            v_ref, g = 0.0, 0.0
+            if self.extent == math.inf:
+                half = np.full(3, math.inf)
+            else:
+                lo, hi = self.extent
+                c, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
         v0, gv = d["speed"], d["g"]
         if self.speed is not None:
             v0, gv = self.speed, 0.0
-        return [*(float(a) for a in c), float(half), float(v_ref), float(g), float(v0), float(gv)]
+        return [float(a) for a in (*c, *half, v_ref, g, v0, gv)]
 
-    def limits_at(self, t: float) -> tuple[np.ndarray, float, float]:
-        """(centre (3,) [m], half-size L(t) [m], speed limit V(t) [m/s]) in force at time t [s]."""
+    def limits_at(self, t: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """(lo (3,), hi (3,) [m] of the box, speed limit [m/s]) in force at time t [s]."""
         lim = self.limits()
-        return np.array(lim[:3]), lim[3] + t * (lim[4] + 0.5 * lim[5] * t), lim[6] + lim[7] * t
+        c, half = np.array(lim[:3]), np.array(lim[3:6]) + t * (lim[6] + 0.5 * lim[7] * t)
+        return c - half, c + half, lim[8] + lim[9] * t
 
     def energy_limit(self) -> float:
         """Energy gain [J] allowed over the start (inf: no energy check)."""
@@ -171,9 +179,9 @@ class Watchdog:
         """The bounds in force (for run summaries): derived values and overrides."""
         out = {"energy_every": self.energy_every, "energy_checked": self._energy is not None}
         if self.derived is not None:
-            c, half, v = self.limits_at(0.0)
+            lo, hi, v = self.limits_at(0.0)
             out.update(
-                centre=c.tolist(), extent_at_start=half, speed_at_start=v, energy_gain=self.energy_limit()
+                box_at_start=[lo.tolist(), hi.tolist()], speed_at_start=v, energy_gain=self.energy_limit()
             )
             out.update({k: self.derived[k] for k in ("v_ref", "g", "energy_scale")})
         return out
@@ -204,11 +212,12 @@ class Watchdog:
         elif rstep != step:
             step = rstep
         quantity = QUANTITY[code]
-        _, half, vmax = self.limits_at(state.time)
+        lo, hi, vmax = self.limits_at(state.time)
         if code in (NONFINITE_POSITION, NONFINITE_VELOCITY):
             what = f"a non-finite {quantity} ({value})"
         elif code == POSITION:
-            what = f"a position {value:.4g} m from the scene's centre (limit {half:.4g} m)"
+            box = f"[{', '.join(f'{a:.3g}' for a in lo)}]..[{', '.join(f'{a:.3g}' for a in hi)}] m"
+            what = f"a position {value:.4g} m from the centre of the watchdog's box, outside {box}"
         else:
             what = f"a speed of {value:.4g} m/s (limit {vmax:.4g} m/s)"
         return DivergenceError(
@@ -229,36 +238,38 @@ class Watchdog:
             return NONFINITE_POSITION, float(x.sum())
         if not np.all(np.isfinite(v)):
             return NONFINITE_VELOCITY, float(v.sum())
-        c, half, vmax = self.limits_at(state.time)
-        d = float(np.max(np.abs(x - c)))
+        lo, hi, vmax = self.limits_at(state.time)
+        c, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+        d = np.abs(x - c)
         speed = float(np.linalg.norm(v))
         # Rounding at the boundary: the larger excess names the quantity.
-        if d / max(half, 1e-30) >= speed / max(vmax, 1e-30):
-            return POSITION, d
+        if np.max(d / np.maximum(half, 1e-30)) >= speed / max(vmax, 1e-30):
+            return POSITION, float(d.max())
         return SPEED, speed
 
-    def check_energy(self, state) -> None:
-        """Raise DivergenceError if the state's energy grew beyond the allowed gain (when due)."""
+    def energy_error(self, state):
+        """The DivergenceError for energy grown beyond the allowed gain, or None; the energy is
+        evaluated only when due (every `energy_every` steps)."""
         if self._energy is None or state.energy_start is None:
-            return
+            return None
         if state.step_count - state.energy_step < self.energy_every:
-            return
+            return None
         state.energy_step = state.step_count
         limit = self.energy_limit()
         if limit == math.inf:
-            return
+            return None
         e = self._energy(state)
-        gain = e - state.energy_start
-        if not gain <= limit:  # NaN too
-            raise DivergenceError(
-                f"simulation diverged by step {state.step_count}: the energy grew from "
-                f"{state.energy_start:.4g} J to {e:.4g} J, more than the {limit:.4g} J the scene's forces "
-                f"can supply; stopping before anything is exported (check dt, stiffness and the integrator's "
-                f"stability limit; bounds: Stepper.watchdog)",
-                step=state.step_count,
-                quantity="energy",
-                value=e,
-            )
+        if e - state.energy_start <= limit:
+            return None
+        return DivergenceError(
+            f"simulation diverged by step {state.step_count}: the energy grew from "
+            f"{state.energy_start:.4g} J to {e:.4g} J, more than the {limit:.4g} J the scene's forces "
+            f"can supply; stopping before anything is exported (check dt, stiffness and the integrator's "
+            f"stability limit; bounds: Stepper.watchdog)",
+            step=state.step_count,
+            quantity="energy",
+            value=e,
+        )
 
 
 def scene_bounds(model, state) -> dict:
