@@ -117,8 +117,8 @@ def test_energy_growth_is_caught_before_the_speed_bound():
         ("drape", {"resolution": 16, "integrator": "symplectic_euler"}, 40),
         ("drape", {"resolution": 16, "integrator": "explicit_euler"}, 20),
         ("cloth", {"resolution": 16, "integrator": "rk4"}, 30),
-        ("cloth", {"resolution": 16}, 30),
-        ("fountain", {"particles": 2000}, 60),
+        ("cloth", {"resolution": 16}, 15),
+        ("fountain", {"particles": 2000}, 30),
     ],
 )
 def test_no_false_positive_on_demos(name, options, frames):
