@@ -326,28 +326,52 @@ def scene_bounds(model, state) -> dict:
 
 
 def energy_function(model):
-    """E(state) -> kinetic plus potential energy [J], or None if the scene can gain energy from outside
-    (emitters, attachments, moving colliders, wind, a term without an energy)."""
-    from .statics import _potential
-    from .terms import Drag
+    """E(state) -> kinetic plus potential energy [J] (gravity, anchors, every element term's), or None if
+    the scene can gain energy from outside (emitters, attachments, moving colliders, wind, a term without
+    an energy). The pointwise part is one reduction kernel (f64 sums); element terms and anchors read the
+    positions in NumPy."""
+    from .terms import AnchorSpring, Drag, Gravity
 
     if model.emitter_count or model.attachment_count:
         return None
     if any(getattr(c, "moving", False) for c in model.colliders):
         return None
-    if any(isinstance(t, Drag) and any(t.wind) for t in model.point_terms):
+    if any(not getattr(t, "has_energy", False) for t in model.element_terms):
         return None
-    potential = _potential(model)
-    if potential is None:
-        return None
-    masses = model.particle_masses()
+    g = np.zeros(3)
+    anchors = []
+    for t in model.point_terms:
+        if isinstance(t, Gravity):
+            g += np.asarray(t.g, dtype=np.float64)
+        elif isinstance(t, AnchorSpring):
+            anchors.append(t)
+        elif not (isinstance(t, Drag) and not any(t.wind)):
+            return None  # wind, or a term this check does not know
+    out = ti.field(ti.f64, ())
+    gx, gy, gz = (float(c) for c in g)
 
     def energy(state) -> float:
-        x = state.particle_x.to_numpy().astype(np.float64)
-        v = state.particle_v.to_numpy().astype(np.float64)
-        return 0.5 * float(np.sum(masses[:, None] * v**2)) + potential(x)[0]
+        out[None] = 0.0
+        _point_energy(model, state, gx, gy, gz, out)
+        e = float(out[None])
+        if model.element_terms or anchors:
+            x = state.particle_x.to_numpy().astype(np.float64)
+            e += sum(t.energy(x) for t in model.element_terms)
+            e += sum(_anchor_energy(t, x) for t in anchors)
+        return e
 
     return energy
+
+
+@ti.kernel
+def _point_energy(
+    model: ti.template(), state: ti.template(), gx: float, gy: float, gz: float, out: ti.template()
+):
+    for i in range(model.particle_count):
+        m = model.mass(i)
+        v = state.particle_v[i]
+        gravity = m * ti.Vector([gx, gy, gz]).dot(state.particle_x[i])
+        out[None] += ti.cast(0.5 * m * v.norm_sqr() - gravity, ti.f64)
 
 
 def _extent(extent):
