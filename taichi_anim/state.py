@@ -69,9 +69,11 @@ class State:
         self.watch_claim = ti.field(ti.i32, ())
         self.watch_record = ti.Vector.field(3, ti.i32, ())
         self.watch_value = ti.field(float, ())
-        self.watch_limit = ti.Vector.field(10, float, ())
-        self.watch_limit[None] = [0.0] * 3 + [math.inf] * 3 + [0.0, 0.0, math.inf, 0.0]
+        self.watch_limit = ti.Vector.field(7, float, ())
+        self.watch_limit[None] = [-math.inf] * 3 + [math.inf] * 4
+        self.watch_bounds_now = None  # (lo, hi, speed) the field holds, for messages
         self.watch_version = -1
+        self.watch_until = -math.inf  # [s] end of the window the field's limits were written for
         self.energy_start = None  # [J] at the first step the watchdog saw (scenes with an energy)
         self.energy_step = 0  # step of the last energy evaluation
         self.watch_reset()

@@ -96,7 +96,7 @@ class Stepper:
             stability.guard(self, state, dt)
             self._guarded_dt = dt
             self._recovery = None
-        self.watchdog.arm(state)
+        self.watchdog.arm(state, dt)
         if self._backup is None:
             self._step(state, dt, self.integrator, 1)
             if state.step_count % self.integrator.check_every == 0:

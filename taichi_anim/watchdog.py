@@ -24,6 +24,8 @@ kernel, `watch_particle`, at the cost of a few flops per particle):
   swings by a factor (1 + a) / (1 - a), a = h w / 2, on an oscillator: 3 at a = 1/2). Evaluated every
   `energy_every` steps (it copies the state to NumPy), when a check is due.
 
+The kernel compares with constants (a box lo..hi and a squared speed): the bounds at the end of a window
+over which they loosen by at most a tenth, rewritten by the Stepper once per window, not per step.
 Each bound can be overridden or switched off (`Watchdog.configure`). The first step that broke a bound,
 its lowest particle index, the quantity and its value are recorded with atomics (`watch_particle`) and
 read by `Stepper.check`, which raises DivergenceError naming them.
@@ -75,15 +77,14 @@ def watch_particle(state: ti.template(), i, x, v, t_end, step):
             code = NONFINITE_POSITION
             value = sx
     elif ti.static(state.watch_bounds):
-        lim = state.watch_limit[None]  # see Watchdog.limits
-        grow = t_end * (lim[6] + 0.5 * lim[7] * t_end)
-        dist = ti.abs(x - ti.Vector([lim[0], lim[1], lim[2]]))
-        vmax = lim[8] + lim[9] * t_end
+        lim = state.watch_limit[None]  # box lo (3), hi (3) [m], squared speed limit [m^2/s^2]
+        lo = ti.Vector([lim[0], lim[1], lim[2]])
+        hi = ti.Vector([lim[3], lim[4], lim[5]])
         s2 = v.norm_sqr()
-        if (dist - ti.Vector([lim[3], lim[4], lim[5]])).max() > grow:
+        if ti.max((x - hi).max(), (lo - x).max()) > 0.0:
             code = POSITION
-            value = dist.max()
-        elif s2 > vmax * vmax:
+            value = ti.abs(x - 0.5 * (lo + hi)).max()
+        elif s2 > lim[6]:
             code = SPEED
             value = ti.sqrt(s2)
     if code != 0:
@@ -130,15 +131,23 @@ class Watchdog:
 
     # -- deriving the bounds -------------------------------------------------------------------------
 
-    def arm(self, state) -> None:
-        """Before a step of `state`: derive the bounds (first state only), record the state's start
-        energy, and write the limits into its field if they changed."""
+    def arm(self, state, dt: float) -> None:
+        """Before a step of dt [s] of `state`: derive the bounds (first state only), record the state's
+        start energy, and write the limits into its field when they changed or the step ends past the
+        window they were written for."""
         if self.derived is None:
             self.derived = scene_bounds(self.model, state)
             self._energy = energy_function(self.model)
-        if state.watch_version != self.version:
-            state.watch_limit[None] = self.limits()
-            state.watch_version = self.version
+        if state.watch_version != self.version or state.time + dt > state.watch_until:
+            # The bounds grow with time; the kernel tests constants: those at the end of a window in
+            # which they loosen by at most a tenth (one field write per window, not per step).
+            end = state.time + dt
+            w = self.window(end)
+            until = end + w
+            lo, hi, vmax = self.limits_at(until if w < math.inf else end)  # inf: they do not grow
+            state.watch_limit[None] = [*lo, *hi, vmax * vmax]
+            state.watch_bounds_now = (lo, hi, vmax)
+            state.watch_version, state.watch_until = self.version, until
         if state.energy_start is None and self._energy is not None:
             state.energy_start = self._energy(state)
             state.energy_step = state.step_count
@@ -160,6 +169,19 @@ class Watchdog:
         if self.speed is not None:
             v0, gv = self.speed, 0.0
         return [float(a) for a in (*c, *half, v_ref, g, v0, gv)]
+
+    def window(self, t: float) -> float:
+        """How long [s] after t the limits at t + window stay within ~10% of those at t."""
+        lim = self.limits()
+        half = min(lim[3:6]) + t * (lim[6] + 0.5 * lim[7] * t)
+        grow_x = lim[6] + lim[7] * t  # d half / dt
+        speed, grow_v = lim[8] + lim[9] * t, lim[9]
+        w = math.inf
+        if grow_x > 0.0:
+            w = min(w, 0.1 * half / grow_x)
+        if grow_v > 0.0:
+            w = min(w, 0.1 * speed / grow_v)
+        return w
 
     def limits_at(self, t: float) -> tuple[np.ndarray, np.ndarray, float]:
         """(lo (3,), hi (3,) [m] of the box, speed limit [m/s]) in force at time t [s]."""
@@ -212,7 +234,7 @@ class Watchdog:
         elif rstep != step:
             step = rstep
         quantity = QUANTITY[code]
-        lo, hi, vmax = self.limits_at(state.time)
+        lo, hi, vmax = state.watch_bounds_now
         if code in (NONFINITE_POSITION, NONFINITE_VELOCITY):
             what = f"a non-finite {quantity} ({value})"
         elif code == POSITION:
@@ -238,7 +260,7 @@ class Watchdog:
             return NONFINITE_POSITION, float(x.sum())
         if not np.all(np.isfinite(v)):
             return NONFINITE_VELOCITY, float(v.sum())
-        lo, hi, vmax = self.limits_at(state.time)
+        lo, hi, vmax = state.watch_bounds_now
         c, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
         d = np.abs(x - c)
         speed = float(np.linalg.norm(v))
