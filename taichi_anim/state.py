@@ -1,6 +1,7 @@
 """State: what changes each step (positions, velocities, birth and death times, trails), and its
 NumPy snapshot for output. Fields exist only for the parts the model has."""
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -8,6 +9,7 @@ import taichi as ti
 
 from .errors import DivergenceError
 from .runtime import data_oriented
+from .watchdog import NO_INDEX, bounds_compiled
 
 ALIVE_FOREVER = 1.0e30
 
@@ -56,20 +58,60 @@ class State:
         self.trail_length = model.trail_length
         self.trail = ti.Vector.field(3, float, (n, self.trail_length)) if self.trail_length else None
         self.trail_head = 0
-        # Divergence watch: count of particles that ended a step non-finite, and the first such step.
+        # Divergence watch (watchdog.py): particle-steps that ended non-finite or out of the watchdog's
+        # bounds, the first such step, its lowest particle index, one consistent (step, particle, quantity
+        # code) record with its value, and the limits the kernel tests against (written by the Stepper's
+        # Watchdog when they change). The names keep "nonfinite" for the solvers that count into them.
+        self.watch_bounds = bounds_compiled()  # compile-time: TAICHI_ANIM_WATCHDOG_BOUNDS=0 leaves them out
         self.nonfinite_count = ti.field(ti.i32, ())
         self.nonfinite_step = ti.field(ti.i32, ())
-        self.nonfinite_step[None] = 2**31 - 1
+        self.watch_particle = ti.field(ti.i32, ())
+        self.watch_claim = ti.field(ti.i32, ())
+        self.watch_record = ti.Vector.field(3, ti.i32, ())
+        self.watch_value = ti.field(float, ())
+        self.watch_limit = ti.Vector.field(7, float, ())
+        self.watch_limit[None] = [-math.inf] * 3 + [math.inf] * 4
+        self.watch_bounds_now = None  # (lo, hi, speed) the field holds, for messages
+        self.watch_version = -1
+        self.watch_until = -math.inf  # [s] end of the window the field's limits were written for
+        self.energy_start = None  # [J] at the first step the watchdog saw (scenes with an energy)
+        self.energy_step = 0  # step of the last energy evaluation
+        self.watch_reset()
+
+    def watch_reset(self) -> None:
+        """Clear the divergence record (after a rollback)."""
+        self.nonfinite_count[None] = 0
+        self.nonfinite_step[None] = NO_INDEX
+        self.watch_particle[None] = NO_INDEX
+        self.watch_claim[None] = 0
+        self.watch_record[None] = [0, 0, 0]
+
+    def save(self, into: "State") -> None:
+        """Copy everything a step changes into `into`, a State of the same model: positions, velocities,
+        birth and death times, free-slot bits, emitter cursors and carries, the trail column the next step
+        writes, the trail head, time and step count (one kernel launch)."""
+        _copy_state(self, into, self.trail_head)
+        into.time, into.step_count, into.trail_head = self.time, self.step_count, self.trail_head
+        into.emit_carry = list(self.emit_carry)
+        into.energy_start, into.energy_step = self.energy_start, self.energy_step
+
+    def restore(self, source: "State") -> None:
+        """Return to the state saved in `source` (filled by `self.save(source)`) and clear the
+        divergence record."""
+        source.save(self)
+        self.watch_reset()
 
     def check_finite(self) -> None:
-        """Raise DivergenceError if any step so far produced a non-finite position or velocity."""
+        """Raise DivergenceError if any step so far produced a non-finite or out-of-bounds position or
+        velocity (the Stepper's `check` names the particle, quantity and value)."""
         bad = int(self.nonfinite_count[None])
         if bad:
             step = int(self.nonfinite_step[None])
             raise DivergenceError(
-                f"simulation diverged at step {step}: {bad} particle(s) got a non-finite position or "
-                f"velocity (check dt, stiffness and the integrator's stability limit); stopping before "
-                f"anything is exported"
+                f"simulation diverged at step {step}: {bad} particle-step(s) got a non-finite or "
+                f"out-of-bounds position or velocity (check dt, stiffness and the integrator's stability "
+                f"limit); stopping before anything is exported",
+                step=step,
             )
 
     def alive_mask(self) -> np.ndarray:
@@ -105,6 +147,25 @@ class State:
         ti.loop_config(serialize=self.model.serial)  # same launch-cost choice as the integrators
         for i in range(self.particle_x.shape[0]):
             self.trail[i, head] = self.particle_x[i]
+
+
+@ti.kernel
+def _copy_state(src: ti.template(), dst: ti.template(), head: ti.i32):
+    ti.loop_config(serialize=src.model.serial)
+    for i in range(src.particle_x.shape[0]):
+        dst.particle_x[i] = src.particle_x[i]
+        dst.particle_v[i] = src.particle_v[i]
+        if ti.static(src.has_lifetimes):
+            dst.particle_birth[i] = src.particle_birth[i]
+            dst.particle_death[i] = src.particle_death[i]
+        if ti.static(src.trail_length > 0):
+            dst.trail[i, head] = src.trail[i, head]  # the only column a step writes
+    if ti.static(src.has_lifetimes):
+        for w in range(src.particle_free.shape[0]):
+            dst.particle_free[w] = src.particle_free[w]
+    if ti.static(src.model.emitter_count > 0):
+        for k in range(src.model.emitter_count):
+            dst.emit_cursor[k] = src.emit_cursor[k]
 
 
 def particle_colors(emitters, idx: np.ndarray, age: np.ndarray, life: np.ndarray) -> np.ndarray:

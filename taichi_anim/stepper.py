@@ -1,7 +1,8 @@
 """The world step: one driver owns what every time-integration method shares — emission, sphere
-contacts and their substeps, the finish tail of a step (alive check, colliders, the divergence watch,
-release of dead slots), trails, time — while a method (integrators/) supplies only its update.
-Newton separates `solver.step(...)` from its collision pipeline the same way."""
+contacts and their substeps, the finish tail of a step (alive check, colliders, the divergence watchdog,
+release of dead slots), trails, time, and what happens when a step diverges (raise, or roll back and
+retry) — while a method (integrators/) supplies only its update. Newton separates `solver.step(...)`
+from its collision pipeline the same way."""
 
 import taichi as ti
 
@@ -10,8 +11,10 @@ from .collision import collide
 from .collision.motion import follow_attachments
 from .collision.self_contact import SelfContact
 from .collision.spheres import ContactSpheres
-from .errors import ParameterError
+from .errors import DivergenceError, ParameterError
 from .health import Health
+from .state import State
+from .watchdog import Watchdog, watch_particle
 
 
 @ti.func
@@ -19,24 +22,34 @@ def finish_particle(
     model: ti.template(), state: ti.template(), mode: ti.template(), i, x0, v0, x1, v1, t, h, step
 ):
     """The end of a step [t, t + h] for particle i, fused into a method's last kernel: colliders against
-    the step's start point (x0, v0), attached particles onto their targets, a count of non-finite results
-    for the divergence watch, and the write."""
+    the step's start point (x0, v0), attached particles onto their targets, the divergence watchdog
+    (non-finite or out-of-bounds results, watchdog.py), and the write."""
     x, v = x1, v1
     if ti.static(model.collider_count > 0):
         x, v = collide(model.colliders, mode, x0, v0, x1, v1, t, h, model.radius(i), model.rest_speed)
     if ti.static(model.attachment_count > 0):
         x, v = follow_attachments(model.attachments, model.particle_attachment, i, x0, x, v, t + h, h)
-    total = x.sum() + v.sum()  # NaN or inf in any component makes the sum NaN or inf
-    if ti.math.isnan(total) or ti.math.isinf(total):
-        ti.atomic_add(state.nonfinite_count[None], 1)
-        ti.atomic_min(state.nonfinite_step[None], step)
+    watch_particle(state, i, x, v, t + h, step)
     state.particle_x[i] = x
     state.particle_v[i] = v
 
 
 class Stepper:
     """Steps `model`'s states with `integrator`, which is bound to the model here (its scratch fields
-    are allocated now, never during a run). `step(state, dt)` advances a state by dt [s] in place."""
+    are allocated now, never during a run). `step(state, dt)` advances a state by dt [s] in place.
+
+    `watchdog` holds the divergence bounds (watchdog.py; `stepper.watchdog.configure(...)` overrides
+    them). On divergence the policy (`policy.divergence`) decides: "raise" (DivergenceError); "retry":
+    roll the state back to the step's start and redo the step in 2, 4, ... substeps, up to
+    `policy.max_retries` halvings; "implicit": roll back and redo it with implicit Euler (in 1, 2, ...
+    substeps, `max_retries` attempts). A recovery is a "divergence_recovered" event in `health`, and the
+    substeps (and method) that worked are kept for the following steps until dt changes. With a recovering
+    policy the watchdog is read after every step (the rollback point is the step's start), the energy
+    (where the scene has one) is evaluated every step (`watchdog.energy_every` = 1; a larger value trades
+    recoveries for speed), and the state is saved into a backup State before each step. A rollback
+    restores the State (see `State.save`); it does not undo solver-side counters and warm starts
+    (adaptive step sizes, a linear solver's previous solution, self-contact statistics), which only
+    affect where the next solve starts."""
 
     def __init__(self, model, integrator):
         self.model = model
@@ -47,6 +60,25 @@ class Stepper:
         self.health = Health(self.policy)
         integrator.health = self.health  # solvers inside the method report here
         self._guarded_dt = None  # the step the stability guard last checked
+        self.watchdog = Watchdog(model)
+        # Recovering policies: a backup State (the rollback point) and, for "implicit", the fallback
+        # method, both made now so that nothing is allocated mid-run.
+        recovering = self.policy.divergence != "raise"
+        self._backup = State(model) if recovering else None
+        self._fallback = None
+        if self.policy.divergence == "implicit":
+            from .integrators.implicit_euler import IntegratorImplicitEuler
+
+            self._fallback = IntegratorImplicitEuler(
+                collision_mode=integrator.collision_mode, policy=self.policy
+            )
+            self._fallback.bind(model)
+            self._fallback.health = self.health
+        self._recovery = None  # (method, substeps) that recovered, kept until dt changes
+        if recovering:
+            # A step can store energy (a spring stretched past any stable length) before anything moves
+            # fast: only the energy shows it in time to roll back, so it is evaluated every step.
+            self.watchdog.energy_every = 1
         # The sphere-contact solver (its neighbour grid, predictions and sweep buffers), when the scene
         # has sphere contacts.
         opts = model.sphere_contacts
@@ -57,50 +89,121 @@ class Stepper:
 
     def step(self, state, dt: float) -> None:
         dt = validate.positive("dt", dt)
-        model, method = self.model, self.integrator
+        model = self.model
         if state.model is not model:
             raise ParameterError("state belongs to another model: make it with this model's state()")
         if dt != self._guarded_dt:
             stability.guard(self, state, dt)
             self._guarded_dt = dt
+            self._recovery = None
+        self.watchdog.arm(state, dt)
+        if self._backup is None:
+            self._step(state, dt, self.integrator, 1)
+            if state.step_count % self.integrator.check_every == 0:
+                self.check(state)
+            return
+        state.save(self._backup)
+        method, split = self._recovery or (self.integrator, 1)
+        error = self._attempt(state, dt, method, split)
+        if error is not None:
+            self._recover(state, dt, error, method, split)
+        if self.self_contact is not None and state.step_count % self.integrator.check_every == 0:
+            self.self_contact.read_stats()
+
+    def check(self, state) -> None:
+        """Read the divergence watch now (a device sync): raises DivergenceError if a step so far
+        diverged (non-finite or out-of-bounds particles; energy growth, evaluated every
+        `watchdog.energy_every` steps). The runner calls it before exporting a frame, so nothing after a
+        bad step is written."""
+        error = self._divergence(state) or self.watchdog.energy_error(state)
+        if error is not None:
+            raise error
+        if self.self_contact is not None:
+            self.self_contact.read_stats()
+
+    def _divergence(self, state):
+        """The DivergenceError the state's watch recorded, or None (one counter read)."""
+        count = int(state.nonfinite_count[None])
+        return None if count == 0 else self.watchdog.error(state, count)
+
+    def _attempt(self, state, dt: float, method, split: int):
+        """Step with `method` in `split` substeps and read the watch (and the energy, when due): the
+        DivergenceError, or None."""
+        try:
+            self._step(state, dt, method, split)
+        except DivergenceError as e:  # a method's own verdict (step-size underflow)
+            return e
+        return self._divergence(state) or self.watchdog.energy_error(state)
+
+    def _recover(self, state, dt: float, error, method, split: int) -> None:
+        """Roll back and redo the step as the policy says; raise if no attempt recovers (the state is
+        then left at the step's start, the last good state)."""
+        policy = self.policy
+        if policy.divergence == "retry":
+            attempts = [(self.integrator, 2**r) for r in range(1, policy.max_retries + 1)]
+        else:
+            attempts = [(self._fallback, 2**r) for r in range(policy.max_retries)]
+        tried = [(m, n) for m, n in attempts if m is not method or n > split]
+        if method is self._fallback:  # the fallback already failed at `split`: only more substeps
+            tried = [(m, n) for m, n in tried if n > split]
+        first = error
+        for m, n in tried:
+            state.restore(self._backup)
+            self.health.count("divergence_attempts")
+            if self._attempt(state, dt, m, n) is None:
+                self._recovery = (m, n)
+                self.health.event(
+                    "divergence_recovered",
+                    state.step_count,
+                    f"step {state.step_count} redone with {m.name} in {n} substep(s) after: {first}",
+                    policy=policy.divergence,
+                    method=m.name,
+                    substeps=n,
+                    quantity=first.quantity,
+                    particle=first.particle,
+                    value=first.value,
+                )
+                return
+        state.restore(self._backup)
+        raise DivergenceError(
+            f"{first} -- not recovered by policy divergence={policy.divergence!r} after {len(tried)} "
+            f"attempt(s) (up to {tried[-1][1] if tried else split} substeps); the state is left at the "
+            f"step's start",
+            step=first.step,
+            particle=first.particle,
+            quantity=first.quantity,
+            value=first.value,
+        )
+
+    def _step(self, state, dt: float, method, split: int) -> None:
+        """Emission, the method's advance in substeps (sphere contacts' own times `split`), trails,
+        time."""
+        model = self.model
         if model.emitter_count:
             model.emit(state, dt)
         contacts = self.contacts
-        if contacts is None:
-            model.prepare_colliders(state.time, dt)
-            self._advance(state, dt)
-        else:
-            # Sphere contacts after every (sub)step; continuous contacts choose substeps from v_max.
-            n = contacts.substeps(model, state, dt)
-            h = dt / n
-            t0 = state.time
-            for k in range(n):
-                state.time = t0 + k * h
-                model.prepare_colliders(state.time, h)
-                self._advance(state, h, contacts)
-            state.time = t0
+        # Sphere contacts after every (sub)step; continuous contacts choose substeps from v_max.
+        n = split * (1 if contacts is None else contacts.substeps(model, state, dt))
+        h = dt / n
+        t0 = state.time
+        for k in range(n):
+            state.time = t0 + k * h
+            model.prepare_colliders(state.time, h)
+            self._advance(state, h, method, contacts)
+        state.time = t0
         if state.trail_length:
             state.record_trails(state.trail_head)
             state.trail_head = (state.trail_head + 1) % state.trail_length
         state.time += dt
         state.step_count += 1
-        if state.step_count % method.check_every == 0:
-            self.check(state)
 
-    def check(self, state) -> None:
-        """Read the divergence watch now (a device sync): raises DivergenceError if a step so far
-        diverged. The runner calls it before exporting a frame, so nothing after a bad step is written."""
-        state.check_finite()
-        if self.self_contact is not None:
-            self.self_contact.read_stats()
-
-    def _advance(self, state, h: float, contacts=None) -> None:
+    def _advance(self, state, h: float, method, contacts=None) -> None:
         """The method's step by h, sphere contacts, then cloth self-contact on the result (last: nothing
         may move a cloth vertex after its guard)."""
         sc = self.self_contact
         if sc is not None:
             sc.begin(self.model, state)
-        self.integrator.advance_step(self.model, state, h)
+        method.advance_step(self.model, state, h)
         if contacts is not None:
             contacts.solve(self.model, state, h, state.step_count + 1)
         if sc is not None:

@@ -224,6 +224,7 @@ def largest_stable_dt(scale, lo, hi, bisections=6, steps=2000):
     model = free_cloth(scale)
     state = model.state()
     integ = ta.IntegratorSymplecticEuler()
+    integ.stepper_for(model).watchdog.disable()  # unstable runs are the point: this test stops them itself
     x0 = state.particle_x.to_numpy()
     pert = 1e-7 * np.random.default_rng(0).normal(size=x0.shape)
     limit = 1e3 * np.abs(pert).max()
