@@ -58,6 +58,7 @@ from .terms import (
     PointTerm,
     Springs,
 )
+from .watchdog import Watchdog
 
 __version__ = "0.1.0"
 
@@ -70,6 +71,7 @@ __all__ = [
     "StabilityError",
     "StabilityWarning",
     "stability",
+    "Watchdog",
     "AeroTriangles",
     "AnchorSpring",
     "BendingDihedral",

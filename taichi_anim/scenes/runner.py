@@ -141,6 +141,7 @@ def _summary(scene, stepper, out, frames, run, files, complete: bool) -> dict:
         "png": str(out / png[0]) if png else None,
         "arch": backend_name(),
         "health": stepper.health.to_dict(),
+        "watchdog": stepper.watchdog.describe(),  # the divergence bounds in force (watchdog.py)
     }
     if not complete:
         return summary  # the state may be non-finite or the runtime interrupted: report only the counts
