@@ -501,7 +501,6 @@ def test_linear_solve_at_its_cap_is_counted_and_reported():
     # ConvergenceError under the policy nonconvergence="raise".
     model = build("grid")
     x0 = deformed(model, 1.2)
-    v0 = np.zeros_like(x0)
     state = model.state()
     state.particle_x.from_numpy(x0)
     integ = ta.IntegratorImplicitEuler(tol=1e-12, max_iterations=3)
