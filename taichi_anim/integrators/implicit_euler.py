@@ -18,6 +18,11 @@ Large Time Steps", SCA 2014 / TVCG 2015) make the same globalisation of Newton o
 step, with an energy as the merit function. The iteration stops when |g|_{M^-1} <= newton_tol times its
 value at v0 (or the absolute floor newton_tol h g sqrt(sum m)); a loop that ends at its cap is reported
 to the run's Health as non-convergence, as is every linear solve that ends at max_iterations.
+Two limits, measured (benchmarks/cloth_newton.py): where springs are compressed their Hessian is
+projected (axial part only), so convergence is linear there and a newton_tol much below 1e-3 stalls
+(default 1e-2, reached in 2-5 iterations on stiff cloth at dt = 1/60 s); and Newton's directions are only
+as good as its linear solves: with PCG stopping at its cap (counted as "linear_unconverged") the energy
+can still grow, as it does with the linearised step.
 
 Pointwise terms alone give a block-diagonal system, solved directly per particle (3x3; the pointwise
 terms are linear, so one step is exact). With element terms (springs, membrane, bending, aerodynamics) the
