@@ -425,3 +425,98 @@ def test_adaptive_integrators_meet_their_tolerance_on_cloth(name):
     error = soft_cloth_error(integrator, model, model.state(), 10)
     print(f"{name}: error {error:.3g}")
     assert error <= 10 * tol
+
+
+# ---------------------------------------------------------------- Newton on backward Euler
+
+
+def be_residual(model, x0, v0, v1, h):
+    """|g(v1)|_{M^-1} on the free particles, g = M (v1 - v0) - h f(x0 + h v1, v1) (Baraff & Witkin, eq. 4:
+    the nonlinear backward-Euler step), from the model's forces."""
+    m = masses(model)
+    free = m > 0
+    g = m[:, None] * (v1 - v0) - h * model.forces(x0 + h * v1, v1)
+    return float(np.sqrt(np.sum(np.sum(g[free] ** 2, axis=1) / m[free])))
+
+
+def one_implicit_step(model, x0, v0, h, **options):
+    """v1 and x1 after one implicit Euler step from (x0, v0), and the integrator."""
+    state = model.state()
+    state.particle_x.from_numpy(x0)
+    state.particle_v.from_numpy(v0)
+    integ = ta.IntegratorImplicitEuler(tol=1e-12, max_iterations=2000, **options)
+    integ.step(model, state, h)
+    return state.particle_v.to_numpy(), state.particle_x.to_numpy(), integ
+
+
+@pytest.mark.parametrize("line_search", [False, True], ids=["plain", "line_search"])
+def test_newton_solves_the_nonlinear_backward_euler_step(line_search):
+    # A cloth stretched to 1.3x its rest size, released at h = 1/30 s (stiff: h w_max ~ 30). The
+    # linearised step leaves a large residual of eq. 4 (rotating springs are nonlinear); Newton drives
+    # it below newton_tol times the residual at v0, checked here with the model's own forces in NumPy
+    # (the loop's own residual must be the same number), and x1 = x0 + h v1, pinned vertices keep v = 0.
+    # The step overshoots into compression, where the springs' Hessian is projected (axial part only),
+    # so Newton converges linearly there: a tolerance of 1e-3 takes 3 iterations, 1e-6 would stall.
+    model = build("grid")
+    h = 1.0 / 30.0
+    x0 = deformed(model, 1.3)
+    v0 = np.zeros_like(x0)
+    start = be_residual(model, x0, v0, v0, h)
+    v_lin, _, _ = one_implicit_step(model, x0, v0, h)
+    v1, x1, integ = one_implicit_step(
+        model, x0, v0, h, newton_iterations=30, newton_tol=1e-3, line_search=line_search
+    )
+    linear = be_residual(model, x0, v0, v_lin, h)
+    newton = be_residual(model, x0, v0, v1, h)
+    print(f"|g| at v0 {start:.3g}, linearised {linear:.3g}, Newton {newton:.3g}, {integ.last_newton}")
+    assert linear > 1e-2 * start  # the nonlinearity matters here
+    iterations, rel, converged = integ.last_newton
+    assert converged and iterations >= 2
+    assert newton <= 1e-3 * start
+    np.testing.assert_allclose(newton / start, rel, rtol=1e-6)
+    np.testing.assert_allclose(x1, x0 + h * v1, rtol=0, atol=1e-12)
+    assert np.all(v1[masses(model) == 0] == 0.0)
+    counts = integ.health.counts
+    assert counts["newton_solves"] == 1 and counts["newton_iterations"] == iterations
+    assert counts["linear_solves"] == iterations and counts["newton_unconverged"] == 0
+
+
+def test_one_newton_iteration_is_the_linearised_step():
+    # newton_iterations=1 (the default) is Baraff & Witkin's linearised step, bit for bit, and counts
+    # one linear solve per step and no Newton loop.
+    model = build("anchored")
+    x0 = deformed(model, 1.1)
+    v0 = 0.1 * np.random.default_rng(1).normal(size=x0.shape)
+    v0[masses(model) == 0] = 0.0
+    va, _, ia = one_implicit_step(model, x0, v0, 0.01)
+    vb, _, ib = one_implicit_step(model, x0, v0, 0.01, newton_iterations=1, line_search=True)
+    np.testing.assert_array_equal(va, vb)
+    assert ib.health.counts["linear_solves"] == 1 and "newton_solves" not in ib.health.counts
+    assert ib.last_newton is None
+
+
+def test_linear_solve_at_its_cap_is_counted_and_reported():
+    # max_iterations=3 cannot reach tol 1e-12 on the stretched cloth: the solve is counted as
+    # unconverged with its iterations and true residual, warned once (SolverWarning), and raised as
+    # ConvergenceError under the policy nonconvergence="raise".
+    model = build("grid")
+    x0 = deformed(model, 1.2)
+    state = model.state()
+    state.particle_x.from_numpy(x0)
+    integ = ta.IntegratorImplicitEuler(tol=1e-12, max_iterations=3)
+    with pytest.warns(ta.SolverWarning, match="stopped at its cap of 3 iterations at step 1"):
+        integ.step(model, state, 0.02)
+    first = integ.linear_solver.last
+    state.particle_x.from_numpy(x0)
+    integ.step(model, state, 0.02)
+    health = integ.stepper_for(model).health
+    assert health.counts["linear_solves"] == 2 and health.counts["linear_unconverged"] == 2
+    assert health.counts["linear_iterations"] == 6
+    event = health.events[0]
+    assert event["kind"] == "linear_unconverged" and event["step"] == 1 and event["iterations"] == 3
+    assert event["residual"] == first.residual > 1e-12 and not first.converged
+    assert [e["step"] for e in health.events] == [1, 2]
+    strict = ta.IntegratorImplicitEuler(tol=1e-12, max_iterations=3, policy={"nonconvergence": "raise"})
+    state.particle_x.from_numpy(x0)
+    with pytest.raises(ta.ConvergenceError, match="cap of 3 iterations"):
+        strict.step(model, state, 0.02)

@@ -3,19 +3,24 @@ course's rule): take one step of h and two of h/2 with the base method; their di
 error. Above `tol` halve h and retry; below tol / 2^(p+1) (doubling h multiplies the local error of an
 order-p method by 2^(p+1)) accept and double h; otherwise accept and keep h. The two half steps are kept.
 The error is the max norm over all particles of the difference in u = (x [m], v [m/s]).
+A step needing more than `max_rejected` halvings, or a step below `h_min`, fails as in rk45.py
+(`fail_step`: ConvergenceError under nonconvergence="raise", else DivergenceError).
 """
 
 import taichi as ti
 
 from .. import validate
-from ..errors import DivergenceError
 from ..runtime import data_oriented
 from .base import Integrator, scratch_pairs
+from .rk45 import fail_step
 
 
 @data_oriented
 class IntegratorAdaptive(Integrator):
-    """Step doubling around any fixed-step base integrator (default RK4)."""
+    """Step doubling around any fixed-step base integrator (default RK4). tol: max-norm error of
+    u = (x [m], v [m/s]) per internal step; h_init, h_min [s]: first and smallest internal step;
+    max_rejected: halvings allowed within one `step(dt)`. Accepted and rejected internal steps are
+    counted here and in the run's Health ("substeps_accepted" / "substeps_rejected")."""
 
     own_caches = False  # the base method evaluates the terms with its own caches
 
@@ -26,6 +31,7 @@ class IntegratorAdaptive(Integrator):
         tol: float = 1e-4,
         h_init: float | None = None,
         h_min: float = 1e-10,
+        max_rejected: int = 100,
         **options,
     ):
         super().__init__(**options)
@@ -40,6 +46,7 @@ class IntegratorAdaptive(Integrator):
         self.tol = validate.positive("tol", tol)
         self.h = None if h_init is None else validate.positive("h_init", h_init)
         self.h_min = validate.positive("h_min", h_min)
+        self.max_rejected = validate.count("max_rejected", max_rejected, 0)
         self.xs = self.vs = None
         self.diff = ti.field(float, ())
         self.accepted = 0
@@ -50,6 +57,7 @@ class IntegratorAdaptive(Integrator):
             **super().settings(),
             "base": self.base.name,
             "tol": self.tol,
+            "max_rejected": self.max_rejected,
             "accepted": self.accepted,
             "rejected": self.rejected,
         }
@@ -67,6 +75,7 @@ class IntegratorAdaptive(Integrator):
         h_next = self.h or dt
         lower = self.tol / 2 ** (self.order + 1)
         adv = self.base.advance
+        accepted = rejected = 0
         while dt - done > 1e-12 * dt:
             h = min(h_next, dt - done)
             t = ta + done
@@ -77,21 +86,26 @@ class IntegratorAdaptive(Integrator):
             self._max_diff(model, state, xs[big], vs[big], xs[half], vs[half], ta)
             err = float(self.diff[None])
             if err > self.tol or err != err:
-                self.rejected += 1
+                rejected += 1
                 h_next = 0.5 * h
-                if h_next < self.h_min:
-                    raise DivergenceError(
-                        f"{self.name}: step size {h_next:g} s fell below h_min={self.h_min:g} s at "
-                        f"step {step} (error {err:g} > tol {self.tol:g})"
-                    )
+                if rejected > self.max_rejected or h_next < self.h_min:
+                    self._tally(accepted, rejected)
+                    fail_step(self, step, t, h_next, err / self.tol, accepted, rejected)
                 continue
-            self.accepted += 1
+            accepted += 1
             self._copy(model, state, xs[half], vs[half], xs[w], vs[w], ta)  # fixed roles: no recompiles
             done += h
             h_next = 2.0 * h if err < lower else h
         self.h = h_next
         self.evaluations = self.base.evaluations
+        self._tally(accepted, rejected)
         self._finish_all(model, state, xs[w], vs[w], ta, dt, step)
+
+    def _tally(self, accepted: int, rejected: int) -> None:
+        self.accepted += accepted
+        self.rejected += rejected
+        self.health.count("substeps_accepted", accepted)
+        self.health.count("substeps_rejected", rejected)
 
     @ti.kernel
     def _max_diff(

@@ -1,6 +1,8 @@
 """The linear system of one linearised backward-Euler step with coupled forces (Baraff & Witkin,
 "Large Steps in Cloth Simulation", 1998, eq. 6 and 15):
     A dv = b,   A = M - h df/dv - h^2 df/dx,   b = h (f0 + h df/dx v0)
+and of a later Newton iteration on backward Euler (implicit_euler.py), linearised at the iterate v_k:
+    A d = -g(v_k),   g(v) = M (v - v0) - h f(x0 + h v, v)
 A is applied matrix-free: (A p)_i = D_i p_i + sum_s S_s (p_i - p_j), where D_i = m_i I - h K_v - h^2 K_x
 holds the pointwise terms' 3x3 Jacobians and each element term adds its S = -(h df/dv + h^2 df/dx)
 (terms/base.py), which every term keeps symmetric positive semi-definite (springs by the compression
@@ -68,6 +70,16 @@ class ImplicitSystem:
     @ti.func
     def assemble_row(self, i, xf: ti.template(), vf: ti.template(), t, h):
         """After linearize: fill b_i, D_i and the inverse diagonal block of row i."""
+        self.row(i, xf, vf, t, h, False, self.solution)
+
+    @ti.func
+    def assemble_row_newton(self, i, xf: ti.template(), vf: ti.template(), dvf: ti.template(), t, h):
+        """A Newton iteration's row at the iterate v_k = v0 + dv (xf = x0 + h v_k, vf = v_k): the same
+        matrix, b_i = -g_i = h f_i(x_k, v_k) - m_i dv_i (the backward-Euler residual, negated)."""
+        self.row(i, xf, vf, t, h, True, dvf)
+
+    @ti.func
+    def row(self, i, xf: ti.template(), vf: ti.template(), t, h, newton: ti.template(), dvf: ti.template()):
         x = xf[i]
         v = vf[i]
         f = ti.Vector.zero(float, 3)
@@ -82,6 +94,8 @@ class ImplicitSystem:
         kx, kv = self.model.force_jacobian(i, x, v, t)
         d = self.model.mass(i) * ti.Matrix.identity(float, 3) - h * kv - h * h * kx
         b = h * (f + fp + h * (kxv + kx @ v))
+        if ti.static(newton):
+            b = h * (f + fp) - self.model.mass(i) * dvf[i]
         inv = ti.Matrix.zero(float, 3, 3)
         if self.free(i):
             inv = (d + element_diag).inverse()

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 
 from .. import validate
-from ..errors import DivergenceError
+from ..errors import ConvergenceError, DivergenceError
 from ..runtime import data_oriented
 from .base import scratch_pairs
 from .runge_kutta import IntegratorRungeKutta, Tableau
@@ -36,9 +36,19 @@ DOPRI5 = Tableau(
 @data_oriented
 class IntegratorRK45(IntegratorRungeKutta):
     """Dormand–Prince 5(4) with error control. rtol, atol: tolerances on u = (x [m], v [m/s]);
-    h_init [s]: first internal step (default dt); h_min [s]: below it the run is declared diverged.
-    adaptive=False takes exactly one fifth-order step per `step(dt)` (for convergence studies).
-    `accepted` and `rejected` count internal steps; `evaluations` counts force evaluations."""
+    h_init [s]: first internal step (default dt); h_min [s]: smallest internal step; max_rejected:
+    rejected internal steps allowed within one `step(dt)`. adaptive=False takes exactly one fifth-order
+    step per `step(dt)` (for convergence studies). `accepted` and `rejected` count internal steps (also
+    in the run's Health as "substeps_accepted" / "substeps_rejected"); `evaluations` counts force
+    evaluations.
+
+    A step that needs more than max_rejected rejections, or an internal step below h_min, has failed
+    (typically: the problem is stiff at this dt, and an explicit method's step is held at its stability
+    limit). It is recorded as an "adaptive_failed" event and raises at once, as scipy's solve_ivp stops
+    with a failure status instead of iterating on: ConvergenceError under the policy
+    nonconvergence="raise", else DivergenceError (step, quantity "step_size", value h), which the
+    divergence policy handles like any failed step (raise, retry with substeps, or implicit Euler).
+    Accepting the step anyway would hand an unstable explicit result to the next step."""
 
     def __init__(
         self,
@@ -47,6 +57,7 @@ class IntegratorRK45(IntegratorRungeKutta):
         atol: float = 1e-6,
         h_init: float | None = None,
         h_min: float = 1e-12,
+        max_rejected: int = 100,
         adaptive: bool = True,
         **options,
     ):
@@ -56,6 +67,7 @@ class IntegratorRK45(IntegratorRungeKutta):
         self.atol = validate.positive("atol", atol)
         self.h = None if h_init is None else validate.positive("h_init", h_init)
         self.h_min = validate.positive("h_min", h_min)
+        self.max_rejected = validate.count("max_rejected", max_rejected, 0)
         self.xs = self.vs = None
         self.accepted = 0
         self.rejected = 0
@@ -66,6 +78,7 @@ class IntegratorRK45(IntegratorRungeKutta):
             "adaptive": self.adaptive,
             "rtol": self.rtol,
             "atol": self.atol,
+            "max_rejected": self.max_rejected,
             "accepted": self.accepted,
             "rejected": self.rejected,
         }
@@ -86,26 +99,51 @@ class IntegratorRK45(IntegratorRungeKutta):
         # would compile a second kernel instance in the middle of a run (fields are template arguments).
         done = 0.0
         h_next = self.h or dt
+        accepted = rejected = 0
         while dt - done > 1e-12 * dt:
             h = min(h_next, dt - done)
             self.error[None] = 0.0
             self.advance(model, state, xs[0], vs[0], xs[1], vs[1], ta, ta + done, h, step, False)
             err = float(self.error[None])
-            if not math.isfinite(err):
-                raise DivergenceError(
-                    f"rk45: non-finite error estimate at step {step} (t={ta + done:g} s, h={h:g} s)"
-                )
             if err <= 1.0:
                 self._copy(model, state, xs[1], vs[1], xs[0], vs[0], ta)
                 done += h
-                self.accepted += 1
+                accepted += 1
                 h_next = h * (5.0 if err == 0.0 else min(5.0, 0.9 * err**-0.2))
             else:
-                self.rejected += 1
-                h_next = h * max(0.2, 0.9 * err**-0.2)
-            if h_next < self.h_min:
-                raise DivergenceError(
-                    f"rk45: step size {h_next:g} s fell below h_min={self.h_min:g} s at step {step}"
-                )
+                rejected += 1
+                # A non-finite estimate is a rejection too: the controller shrinks h by its largest factor.
+                h_next = h * (max(0.2, 0.9 * err**-0.2) if math.isfinite(err) else 0.2)
+            if rejected > self.max_rejected or h_next < self.h_min:
+                self._tally(accepted, rejected)
+                fail_step(self, step, ta + done, h_next, err, accepted, rejected)
         self.h = h_next
+        self._tally(accepted, rejected)
         self._finish_all(model, state, xs[0], vs[0], ta, dt, step)
+
+    def _tally(self, accepted: int, rejected: int) -> None:
+        self.accepted += accepted
+        self.rejected += rejected
+        self.health.count("substeps_accepted", accepted)
+        self.health.count("substeps_rejected", rejected)
+
+
+def fail_step(method, step: int, t: float, h: float, err: float, accepted: int, rejected: int) -> None:
+    """An adaptive method's step failed its error control (too many rejections, or h below h_min):
+    record it and raise ConvergenceError (policy nonconvergence="raise") or DivergenceError."""
+    why = (
+        f"more than max_rejected={method.max_rejected} rejected internal steps"
+        if rejected > method.max_rejected
+        else f"the internal step fell below h_min={method.h_min:g} s"
+    )
+    message = (
+        f"{method.name}: step {step} (t={t:g} s) failed its error control: {why} "
+        f"({rejected} rejected, {accepted} accepted; h reached {h:.3g} s, error {err:.3g} of the "
+        f"tolerance). The problem is stiff at this step: use implicit_euler, a smaller dt, or looser "
+        f"tolerances"
+    )
+    method.health.count("adaptive_failed")
+    method.health.event("adaptive_failed", step, message, time=t, h=h, accepted=accepted, rejected=rejected)
+    if method.policy.nonconvergence == "raise":
+        raise ConvergenceError(message)
+    raise DivergenceError(message, step=step, quantity="step_size", value=h)

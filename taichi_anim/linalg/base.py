@@ -32,11 +32,12 @@ class LinearSolverKind(Enum):
 @dataclass(frozen=True)
 class LinearSolveResult:
     """iterations run; residual: final |b - A x| / |b| (2-norms, 0 when b = 0); converged: residual <= tol,
-    or |b - A x| <= atol (the absolute floor, for right-hand sides that are round-off)."""
+    or |b - A x| <= atol (the absolute floor, for right-hand sides that are round-off); rhs_norm: |b|."""
 
     iterations: int
     residual: float
     converged: bool
+    rhs_norm: float = 0.0
 
 
 @data_oriented
@@ -109,7 +110,7 @@ class LinearSolver:
         it = int(self.status[1])
         rr, bb = (float(v) for v in self.final.to_numpy())
         res = math.sqrt(max(rr, 0.0) / bb) if bb > 0 else 0.0
-        self.last = LinearSolveResult(it, res, res <= self.tol or rr <= floor)
+        self.last = LinearSolveResult(it, res, res <= self.tol or rr <= floor, math.sqrt(max(bb, 0.0)))
         self.total_iterations += it
         self.solves += 1
         return self.last
