@@ -11,6 +11,7 @@ from ..io.export import frame_path, write_point_cloud
 from ..render import fit_camera, render_png
 from .base import Scene, _box_edges
 
+FRAME_DT = 1 / 30  # [s]
 SLOW, FAST = np.array([0.2, 0.35, 0.75]), np.array([1.0, 0.6, 0.15])
 
 
@@ -49,6 +50,8 @@ def build(
     integrator: str = "symplectic_euler",
     particles: int = 100_000,
     radius: float = 0.006,
+    steps_per_frame: int = 80,
+    sweeps: int = 1,
 ) -> Scene:
     """`particles` spheres of `radius` [m] on a jittered lattice in a column inside a 1.2 x 1.2 m box,
     0.3 m above its floor, falling with random velocities; dt 1/2400 s, one projection sweep per step (a
@@ -68,7 +71,7 @@ def build(
     b.add_force_gravity()
     b.add_particles(x, v, mass=1e-3, radius=radius)
     b.add_collider_box(lo, hi, restitution=0.3, friction=0.4)
-    b.add_sphere_contacts(restitution=0.5, friction=0.4, iterations=1)
+    b.add_sphere_contacts(restitution=0.5, friction=0.4, iterations=sweeps)
     model = b.finalize(seed=seed)
     return SpheresScene(
         name="spheres",
@@ -76,8 +79,8 @@ def build(
         model=model,
         state=model.state(),
         integrator=make_integrator(integrator, check_every=80),
-        dt=1 / 2400,
-        substeps=80,
+        dt=FRAME_DT / steps_per_frame,
+        substeps=steps_per_frame,
         bounds=(lo, hi),
         point_radius=radius,
         options={"particles": particles, "radius": radius},
