@@ -6,15 +6,15 @@ Baraff, "Physically Based Modeling: Rigid Body Simulation", sec. 8, eq. 8-18: th
 After the integrator's step (the prediction x*, v*), the contact pass rebuilds the neighbour structure
 on x*, lists each sphere's contacts in x* (and counts them), and runs, in cell order:
 1. `iterations` Jacobi sweeps of position projection. Each pair's correction is scaled by
-   min(1, omega / max(n_i, n_j)), with n the two spheres' contact counts (Macklin et al., "Unified
-   Particle Physics for Real-Time Applications", SIGGRAPH 2014, sec. 4.2, eq. 11: averaging over a
-   sphere's constraints so that dense piles do not overshoot, with over-relaxation 1 <= omega <= 2).
-   The scale is the same on both sides of a pair, so the two corrections stay equal and opposite in
-   mass-weighted terms and every sweep conserves linear momentum; averaging by each sphere's own count
-   did not (a sphere with two contacts took half of each correction while its partners took all of
-   theirs, which lost 14% of a Newton's cradle's momentum at 8 sweeps). n is counted on the positions the
-   previous sweep read (x* for the first two sweeps): the count of the positions being read is only
-   known once the sweep is over;
+   min(1, omega / n_ij), n_ij = (n_i + n_j) / 2 the mean of the two spheres' contact counts (Macklin et
+   al., "Unified Particle Physics for Real-Time Applications", SIGGRAPH 2014, sec. 4.2, eq. 11:
+   averaging over a sphere's constraints so that dense piles do not overshoot, with over-relaxation
+   1 <= omega <= 2). The scale is the same on both sides of a pair, so the two corrections stay equal and
+   opposite in mass-weighted terms and every sweep conserves linear momentum; averaging by each sphere's
+   own count did not (a sphere with two contacts took half of each correction while its partners took
+   all of theirs, which lost 14% of a Newton's cradle's momentum at 8 sweeps). n is counted on the
+   positions the previous sweep read (x* for the first two sweeps): the count of the positions being read
+   is only known once the sweep is over;
 2. velocities from positions, v = v* + (x - x*)/h, as in position-based dynamics (Müller et al. 2007,
    alg. 1, line 12), which keeps resting piles from sinking;
 3. one velocity sweep over the pairs that overlapped at x* and were approaching: the relative normal
@@ -115,8 +115,10 @@ class _Sweep:
                 # Coincident centres have no line of centres: separate them along x, the lower slot
                 # going to -x, so that a stacked pair (e.g. from a point emitter) comes apart.
                 d = ti.Vector([1e-12 if i > k else -1e-12, 0.0, 0.0], dt=float)
-            n = ti.max(ret.c, self.prev.count[k], 1)
-            scale = ti.min(1.0, o.relaxation / n)  # the same for both spheres of the pair
+            # The pair's mean count: the same for both spheres of the pair (the larger of the two left
+            # more overlap in the spheres demo, the smaller overshot).
+            n = ti.max(0.5 * (ret.c + self.prev.count[k]), 1.0)
+            scale = ti.min(1.0, o.relaxation / n)
             ret.dx += scale * pair_projection(d, ret.r, ret.w, rj, o.slot_inv_mass(k))
             ret.n += 1
 
