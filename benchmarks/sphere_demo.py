@@ -36,7 +36,7 @@ from common import (
 from taichi_anim.scenes import spheres as spheres_scene
 
 # (steps per frame, sweeps per step); the first is the demo's old setting.
-OPTIONS = [(80, 1), (80, 2), (120, 1), (160, 1), (80, 4)]
+OPTIONS = [(80, 1), (80, 2), (80, 4), (160, 1), (200, 1)]
 
 
 def run(particles: int, frames: int, steps_per_frame: int, sweeps: int) -> dict:
