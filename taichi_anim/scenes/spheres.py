@@ -50,15 +50,17 @@ def build(
     integrator: str = "symplectic_euler",
     particles: int = 100_000,
     radius: float = 0.006,
-    steps_per_frame: int = 160,
+    steps_per_frame: int = 200,
     sweeps: int = 1,
 ) -> Scene:
     """`particles` spheres of `radius` [m] on a jittered lattice in a column inside a 1.2 x 1.2 m box,
     0.3 m above its floor, falling with random velocities; 1/30 s frames of `steps_per_frame` steps (dt
-    1/4800 s by default) with `sweeps` projection sweeps each. 160 x 1 was chosen by measurement
-    (benchmarks/sphere_demo.py): it keeps the closest pair above 0.9 of a diameter through the column's
-    splash, where 80 steps of 1 sweep left 0.84 d and 80 of 2 sweeps 0.89 d; benchmarks/sphere_piles.py
-    shows the largest overlap left in a settled pile against dt and sweeps."""
+    1/6000 s by default) with `sweeps` projection sweeps each. 200 x 1 was chosen by measurement
+    (benchmarks/sphere_demo.py; 10^5 spheres, first frames): the closest pair stays at 0.94 of a diameter
+    or more through the column's splash, where 160 x 1 kept 0.904 d and the old 80 x 1 left 0.75-0.84 d;
+    more sweeps cost more per unit of separation gained (80 x 4 kept 0.93 d at 20,000 spheres, as 160 x 1
+    did). benchmarks/sphere_piles.py shows the largest overlap left in a settled pile against dt and
+    sweeps."""
     rng = np.random.default_rng(seed)
     spacing = 2.2 * radius
     side = max(2, min(60, round(1.3 * particles ** (1 / 3))))  # at most 0.8 m wide for 6 mm spheres

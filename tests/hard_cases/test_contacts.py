@@ -145,7 +145,7 @@ def test_spheres_demo_keeps_its_spheres_apart():
 @pytest.mark.slow
 def test_spheres_demo_at_full_size_keeps_its_spheres_apart():
     """The spheres demo as `taichi-anim demo spheres` runs it (10^5 spheres, 60 frames). Pass: the closest
-    pair stays above 0.9 of a diameter at every frame (it was 0.83-0.87 from frame 8 on; 0.904 at frame
-    8 now, measured over the first 20 frames)."""
+    pair stays above 0.9 of a diameter at every frame (it was 0.83-0.87 from frame 8 on; 0.942 now over
+    the first 13 frames)."""
     closest = closest_pair_per_frame(60)
     assert min(closest) > 0.9, f"closest pair {min(closest):.3f} d (frame {int(np.argmin(closest)) + 1})"
