@@ -5,6 +5,16 @@ relative velocity; v_s = 0 for a static one, whose code has no such term).
 
 `collide` runs after the integrator has produced the end-of-step state; PROJECTION moves the end point to
 the surface, BACKWARD re-walks the step's segment (backward search to the time of impact).
+
+BACKWARD filters velocities and lets positions follow them (Bridson, Fedkiw & Anderson, "Robust Treatment
+of Collisions, Contact and Friction for Cloth Animation", SIGGRAPH 2002, sec. 7.1 and 8: impulses change
+the velocity, and the rest of the step moves with the filtered velocity). A particle touching two
+surfaces at once (a wedge, such as a ball resting on the floor) must leave with a velocity in the cone
+{v : v.n_a >= 0, v.n_b >= 0} of both contacts, i.e. along their crease: removing one normal at a time
+re-enters the other surface at every impact, the step's impacts run out, the particle is held where it is
+while its velocity keeps the springs' pull, and a velocity the position never follows grows every step
+(a cloth vertex caught between a ball and the floor reached 170 m/s and fed the energy back through its
+springs).
 """
 
 import taichi as ti
@@ -26,6 +36,24 @@ def respond(v, n, restitution, friction):
         vt = v_tangent.norm()
         keep = ti.max(1.0 - friction * (1.0 + restitution) * (-vn) / ti.max(vt, 1e-12), 0.0)
         out = keep * v_tangent - restitution * v_normal
+    return out
+
+
+@ti.func
+def crease(v, n, nb):
+    """v (with v.n >= 0, n the normal just responded to) kept out of the previous impact's surface of
+    normal nb too (nb = 0: none): the projection onto that surface's plane if it leaves the first, else
+    onto the crease n x nb (Bridson et al. 2002, sec. 7.1: velocities stay in the cone of every contact)."""
+    out = v
+    vb = v.dot(nb)
+    if vb < 0.0:
+        out = v - vb * nb
+        if out.dot(n) < 0.0:
+            c = n.cross(nb)
+            cc = c.norm_sqr()
+            out = ti.Vector.zero(float, 3)  # normals opposite (a particle squeezed between two faces)
+            if cc > 1e-12:
+                out = v.dot(c) / cc * c
     return out
 
 
@@ -170,15 +198,16 @@ def _first_hit(colliders: ti.template(), xs, xe, t, h, r):
 
 
 @ti.func
-def _impact(colliders: ti.template(), xs, vs, xe, ve, frac, t, dt, r, rest_speed, stop):
+def _impact(colliders: ti.template(), xs, vs, xe, ve, frac, t, dt, r, rest_speed, nb, stop):
     """The first impact on what is left of the step (the path xs -> xe, the last frac of [t, t + dt]),
-    resolved: the state at impact and the rest of the step with the new velocity (unchanged if none);
-    with `stop`, the particle stays at the contact instead (the relative normal velocity removed)."""
+    resolved: the state at impact and the rest of the step with the new velocity (unchanged if none), and
+    the normal hit (nb unchanged if none); nb: the previous impact's normal in this step (0: none), whose
+    surface the new velocity may not enter either (`crease`); with `stop`, the particle stays at the
+    contact instead (see `_stop`)."""
     tau, n, e, mu, vsurf = _first_hit(colliders, xs, xe, t + (1.0 - frac) * dt, frac * dt, r)
     if ti.static(_may_stop(stop)):
         if stop and tau <= 1.0:
-            xe = xs + tau * (xe - xs)
-            ve = respond(ve - vsurf, n, 0.0, mu) + vsurf
+            xe, ve = _stop(xs, xe, tau, vsurf)
             tau = NO_HIT  # resolved: no bounce below
     if tau <= 1.0:
         xh = xs + tau * (xe - xs)
@@ -189,7 +218,7 @@ def _impact(colliders: ti.template(), xs, vs, xe, ve, frac, t, dt, r, rest_speed
             vi -= vsurf
         if -vi.dot(n) <= rest_speed:
             e = 0.0
-        vh = respond(vi, n, e, mu)
+        vh = crease(respond(vi, n, e, mu), n, nb)
         if ti.static(any_moving(colliders)):
             vh += vsurf
         rest = 1.0 - tau
@@ -200,13 +229,23 @@ def _impact(colliders: ti.template(), xs, vs, xe, ve, frac, t, dt, r, rest_speed
         # (which ended in the stop below and left the particle where it was for the step).
         if ti.static(any_moving(colliders)):
             if (ve - vsurf).dot(n) < 0.0:
-                ve = respond(ve - vsurf, n, 0.0, mu) + vsurf
+                ve = crease(respond(ve - vsurf, n, 0.0, mu), n, nb) + vsurf
         elif ve.dot(n) < 0.0:
-            ve = respond(ve, n, 0.0, mu)
+            ve = crease(respond(ve, n, 0.0, mu), n, nb)
         frac *= rest
         xs, vs = xh, vh
         xe = xh + frac * dt * ve
-    return xs, vs, xe, ve, frac
+        nb = n
+    return xs, vs, xe, ve, frac, nb
+
+
+@ti.func
+def _stop(xs, xe, tau, vsurf):
+    """The particle stays at the contact at tau on xs -> xe for the rest of the step (impacts left after
+    MAX_HITS), and leaves with a velocity of that contact's surface's (a relative velocity of zero): it
+    does not move for the rest of the step, so a velocity kept beside a position held still is one the
+    position never follows, and the springs' pull would grow it step after step."""
+    return xs + tau * (xe - xs), vsurf
 
 
 @ti.func
@@ -219,28 +258,27 @@ def collide(colliders: ti.template(), mode: ti.template(), x0, v0, x1, v1, t, dt
     if ti.static(mode == CollisionMode.BACKWARD):
         xs, vs, xe, ve = x0, v0, x1, v1
         frac = ti.cast(1.0, float)  # fraction of dt still to run from xs
+        nb = ti.Vector.zero(float, 3)  # the normal of the step's last impact
         if ti.static(_runtime_loop(colliders)):
             # One copy of the swept tests: the last pass stops at the contact (see below) instead of
             # bouncing.
             for k in range(MAX_HITS + 1):
-                xs, vs, xe, ve, frac = _impact(
-                    colliders, xs, vs, xe, ve, frac, t, dt, r, rest_speed, k == MAX_HITS
+                xs, vs, xe, ve, frac, nb = _impact(
+                    colliders, xs, vs, xe, ve, frac, t, dt, r, rest_speed, nb, k == MAX_HITS
                 )
             x, v = xe, ve
         else:
             for _ in ti.static(range(MAX_HITS)):
-                xs, vs, xe, ve, frac = _impact(colliders, xs, vs, xe, ve, frac, t, dt, r, rest_speed, False)
+                xs, vs, xe, ve, frac, nb = _impact(
+                    colliders, xs, vs, xe, ve, frac, t, dt, r, rest_speed, nb, False
+                )
             # Impacts left after MAX_HITS (the step's velocity change keeps driving the path into a
             # surface): stop at the first contact on what is left of the path instead of letting the
             # safety projection push the particle out of whichever side is nearest, possibly the far
             # side of a thin solid.
             tau, n, _, mu, vsurf = _first_hit(colliders, xs, xe, t + (1.0 - frac) * dt, frac * dt, r)
             if tau <= 1.0:
-                xe = xs + tau * (xe - xs)
-                if ti.static(any_moving(colliders)):
-                    ve = respond(ve - vsurf, n, 0.0, mu) + vsurf
-                else:
-                    ve = respond(ve, n, 0.0, mu)
+                xe, ve = _stop(xs, xe, tau, vsurf)
             x, v = xe, ve
     # Safety net in both modes: nothing ends a step inside a collider (round-off, multiple contacts).
     return _project(colliders, x, v, r, rest_speed, x0, t + dt, dt)

@@ -4,20 +4,27 @@ Baraff, "Physically Based Modeling: Rigid Body Simulation", sec. 8, eq. 8-18: th
 -(1 + e) v_rel.n / (1/m_a + 1/m_b), so each body takes its inverse-mass share and momentum is conserved).
 
 After the integrator's step (the prediction x*, v*), the contact pass rebuilds the neighbour structure
-on x* and runs, in cell order:
-1. `iterations` Jacobi sweeps of position projection: a sphere with n overlapping pairs moves by
-   min(1, omega / n) times the sum of their corrections, then out of the walls (Macklin et al., "Unified
-   Particle Physics for Real-Time Applications", SIGGRAPH 2014, sec. 4.2, eq. 11: averaging so dense
-   piles do not overshoot, with over-relaxation 1 <= omega <= 2; omega = 2 halved the largest overlap
-   of a 7-layer pile against the plain mean);
+on x*, lists each sphere's contacts in x* (and counts them), and runs, in cell order:
+1. `iterations` Jacobi sweeps of position projection. Each pair's correction is scaled by
+   min(1, omega / n_ij), n_ij = (n_i + n_j) / 2 the mean of the two spheres' contact counts (Macklin et
+   al., "Unified Particle Physics for Real-Time Applications", SIGGRAPH 2014, sec. 4.2, eq. 11:
+   averaging over a sphere's constraints so that dense piles do not overshoot, with over-relaxation
+   1 <= omega <= 2). The scale is the same on both sides of a pair, so the two corrections stay equal and
+   opposite in mass-weighted terms and every sweep conserves linear momentum; averaging by each sphere's
+   own count did not (a sphere with two contacts took half of each correction while its partners took
+   all of theirs, which lost 14% of a Newton's cradle's momentum at 8 sweeps). n is counted on the
+   positions the previous sweep read (x* for the first two sweeps): the count of the positions being read
+   is only known once the sweep is over;
 2. velocities from positions, v = v* + (x - x*)/h, as in position-based dynamics (Müller et al. 2007,
    alg. 1, line 12), which keeps resting piles from sinking;
 3. one velocity sweep over the pairs that overlapped at x* and were approaching: the relative normal
    velocity becomes -e times its value before the solve (e = 0 below rest_speed, so resting contacts do
    not jitter), and the tangential one loses at most mu times the normal change (Coulomb) (Müller et
-   al., "Detailed Rigid Body Simulation with Extended Position Based Dynamics", 2020, sec. 3.6).
-A single pair is solved exactly (a mean of one). Sweeps gather into ping-pong buffers: no float atomics,
-so a seed gives the same result at any thread count.
+   al., "Detailed Rigid Body Simulation with Extended Position Based Dynamics", 2020, sec. 3.6); each
+   pair's change is divided by the larger of its two spheres' counts of such pairs (symmetric, as in 1).
+A single pair is solved exactly (a mean of one). Candidate pairs come from the cells around each sphere's
+position in x* (the same cells for both spheres of a pair, so both see the pair or neither does). Sweeps
+gather into ping-pong buffers: no float atomics, so a seed gives the same result at any thread count.
 """
 
 import math
@@ -37,9 +44,9 @@ def accumulator_types():
     """Per-sphere accumulators of the sweeps. Made after ti.init: a type made before it resolves
     `float` to f32 whatever the chosen precision."""
     vec3 = ti.types.vector(3, float)
-    position = ti.types.struct(x=vec3, r=float, w=float, dx=vec3, n=ti.i32)
+    position = ti.types.struct(x=vec3, r=float, w=float, dx=vec3, n=ti.i32, c=ti.i32)
     velocity = ti.types.struct(
-        x=vec3, v=vec3, xp=vec3, vp=vec3, r=float, w=float, inv_h=float, dv=vec3, n=ti.i32
+        x=vec3, v=vec3, xp=vec3, vp=vec3, r=float, w=float, inv_h=float, dv=vec3, n=ti.i32, c=ti.i32
     )
     return position, velocity
 
@@ -72,18 +79,33 @@ def pair_velocity(n, vi, wi, vj, wj, vn_before, e, mu, rest_speed):
 
 @data_oriented
 class _PositionSide:
-    """One side of the position ping-pong: sphere centres in slot order. The prediction's side records
-    each sphere's contacts (the velocity sweep revisits exactly these)."""
+    """One side of the position ping-pong: sphere centres in slot order, and each sphere's count of
+    overlapping pairs in these positions (written by the sweep that reads them)."""
 
-    def __init__(self, owner, x, record: bool = False):
+    def __init__(self, owner, x, count):
         self.owner = owner
         self.x = x
-        self.record = record
+        self.count = count
+
+    @ti.func
+    def visit_velocity(self, i, k, ret: ti.template()):
+        self.owner._visit_velocity(self, i, k, ret)
+
+
+@data_oriented
+class _Sweep:
+    """The pair visits of one Jacobi sweep: positions from `src`, pair weights from the counts of `prev`
+    (the side the previous sweep read)."""
+
+    def __init__(self, owner, src: _PositionSide, prev: _PositionSide):
+        self.owner = owner
+        self.src = src
+        self.prev = prev
 
     @ti.func
     def visit(self, i, k, ret: ti.template()):
         o = self.owner
-        xj = self.x[k]
+        xj = self.src.x[k]
         rj = o.slot_radius(k)
         reach = ret.r + rj
         d = ret.x - xj
@@ -93,32 +115,12 @@ class _PositionSide:
                 # Coincident centres have no line of centres: separate them along x, the lower slot
                 # going to -x, so that a stacked pair (e.g. from a point emitter) comes apart.
                 d = ti.Vector([1e-12 if i > k else -1e-12, 0.0, 0.0], dt=float)
-            ret.dx += pair_projection(d, ret.r, ret.w, rj, o.slot_inv_mass(k))
-            if ti.static(self.record):
-                if ret.n < CONTACTS_KEPT:
-                    o.slot_contacts[i, ret.n] = k
+            # The pair's mean count: the same for both spheres of the pair (the larger of the two left
+            # more overlap in the spheres demo, the smaller overshot).
+            n = ti.max(0.5 * (ret.c + self.prev.count[k]), 1.0)
+            scale = ti.min(1.0, o.relaxation / n)
+            ret.dx += scale * pair_projection(d, ret.r, ret.w, rj, o.slot_inv_mass(k))
             ret.n += 1
-
-    @ti.func
-    def visit_velocity(self, i, k, ret: ti.template()):
-        """Restitution and friction for a pair that overlapped in the prediction and was approaching."""
-        o = self.owner
-        reach = ret.r + o.slot_radius(k)
-        d = ret.xp - o.x_pred[k]
-        d2 = d.norm_sqr()
-        if 1e-24 < d2 < reach * reach:
-            n = d / ti.sqrt(d2)
-            vn_before = (ret.vp - o.v_pred[k]).dot(n)
-            if vn_before < 0.0:
-                # The normal of the solved positions: the one the projection separated along.
-                ds = ret.x - self.x[k]
-                ns = ds / ti.max(ds.norm(), 1e-30)
-                vj = o.v_pred[k] + (self.x[k] - o.x_pred[k]) * ret.inv_h
-                ret.dv += pair_velocity(
-                    ns, ret.v, ret.w, vj, o.slot_inv_mass(k), vn_before,
-                    o.restitution, o.friction, o.rest_speed,
-                )  # fmt: skip
-                ret.n += 1
 
 
 @data_oriented
@@ -167,13 +169,21 @@ class ContactSpheres:
         # two sides of the position ping-pong.
         self.x_pred = self.neighbors.sorted_x
         self.v_pred = ti.Vector.field(3, float, n)
-        self.pred = _PositionSide(self, self.x_pred, record=True)
-        # The first sweep lists each sphere's contacts in the prediction, in visiting order; the velocity
-        # sweep, whose contacts are exactly these, walks the list instead of the 27 cells (the same pairs
-        # in the same order, so the same sums). A sphere with more falls back to the cells.
+        # The prediction's contacts, listed in visiting order: the first sweep and the velocity sweep,
+        # whose contacts are exactly these, walk the list instead of the 27 cells (the same pairs in the
+        # same order, so the same sums). A sphere with more falls back to the cells.
         self.slot_contacts = ti.field(ti.i32, (n, CONTACTS_KEPT))
         self.slot_contact_count = ti.field(ti.i32, n)
-        self.sides = [_PositionSide(self, ti.Vector.field(3, float, n)) for _ in range(2)]
+        self.slot_approach_count = ti.field(ti.i32, n)  # of those, the pairs that were approaching
+        self.pred = _PositionSide(self, self.x_pred, self.slot_contact_count)
+        self.sides = [
+            _PositionSide(self, ti.Vector.field(3, float, n), ti.field(ti.i32, n)) for _ in range(2)
+        ]
+        # Sweep k reads src and the counts of the side sweep k - 1 read: the first two the prediction's,
+        # then the two sides in turn.
+        a, b = self.sides
+        self.sweeps = [_Sweep(self, self.pred, self.pred), _Sweep(self, a, self.pred)]
+        self.sweeps += [_Sweep(self, b, a), _Sweep(self, a, b)]
         self._per_slot = model.per_particle_radius or model.per_particle_mass
         self.slot_r = ti.field(float, n) if self._per_slot else None
         self.slot_w = ti.field(float, n) if self._per_slot else None
@@ -207,6 +217,54 @@ class ContactSpheres:
             w = self.slot_w[k]
         return w
 
+    # -- pair visits -----------------------------------------------------------------------------------
+
+    @ti.func
+    def _visit_count(self, i, k, ret: ti.template()):
+        """Lists and counts the pairs that overlap in the prediction."""
+        reach = ret.r + self.slot_radius(k)
+        if (ret.x - self.x_pred[k]).norm_sqr() < reach * reach and k != i:
+            if ret.n < CONTACTS_KEPT:
+                self.slot_contacts[i, ret.n] = k
+            ret.n += 1
+
+    @ti.func
+    def _approaching(self, i, k, ret: ti.template()):
+        """Whether pair (i, k) overlapped in the prediction and was approaching, and its normal."""
+        reach = ret.r + self.slot_radius(k)
+        d = ret.xp - self.x_pred[k]
+        d2 = d.norm_sqr()
+        n = ti.Vector.zero(float, 3)
+        vn_before = ti.cast(0.0, float)
+        hit = False
+        if 1e-24 < d2 < reach * reach:
+            n = d / ti.sqrt(d2)
+            vn_before = (ret.vp - self.v_pred[k]).dot(n)
+            hit = vn_before < 0.0
+        return hit, vn_before
+
+    @ti.func
+    def _visit_approach_count(self, i, k, ret: ti.template()):
+        hit, _ = self._approaching(i, k, ret)
+        if hit:
+            ret.n += 1
+
+    @ti.func
+    def _visit_velocity(self, side: ti.template(), i, k, ret: ti.template()):
+        """Restitution and friction for a pair that overlapped in the prediction and was approaching."""
+        hit, vn_before = self._approaching(i, k, ret)
+        if hit:
+            # The normal of the solved positions: the one the projection separated along.
+            ds = ret.x - side.x[k]
+            ns = ds / ti.max(ds.norm(), 1e-30)
+            vj = self.v_pred[k] + (side.x[k] - self.x_pred[k]) * ret.inv_h
+            dv = pair_velocity(
+                ns, ret.v, ret.w, vj, self.slot_inv_mass(k), vn_before,
+                self.restitution, self.friction, self.rest_speed,
+            )  # fmt: skip
+            ret.dv += dv / ti.max(ret.c, self.slot_approach_count[k], 1)  # the same share for both
+            ret.n += 1
+
     # -- step ------------------------------------------------------------------------------------------
 
     def substeps(self, model, state, dt: float) -> int:
@@ -231,11 +289,11 @@ class ContactSpheres:
         """Resolve contacts after a step of size h (state holds its prediction, ending at time + h)."""
         death = state.particle_death if state.has_lifetimes else None
         self.neighbors.build(state.particle_x, death=death, t=state.time + h)
-        src, (a, b) = self.pred, self.sides
+        a, b = self.sides
         for it in range(self.iterations):
-            self._project(model, state, src, a, it == 0, state.time + h)
-            src, a, b = a, b, a
-        self._velocities(state, src, 1.0 / h, step)
+            sweep = self.sweeps[it if it < 2 else 2 + it % 2]
+            self._project(model, state, sweep, b if it % 2 else a, it == 0, state.time + h)
+        self._velocities(state, b if self.iterations % 2 == 0 else a, 1.0 / h, step)
 
     @ti.func
     def _gather(self, model: ti.template(), state: ti.template(), k):
@@ -246,39 +304,60 @@ class ContactSpheres:
             self.slot_r[k] = model.radius(i)
             self.slot_w[k] = model.inv_mass(i)
 
+    @ti.func
+    def _listed(self, k, visit: ti.template(), ret: ti.template(), p):
+        """visit(k, j, ret) for slot k's contacts in the prediction: from its list, or from the cells
+        around p (its position in the prediction) if it has more than the list holds."""
+        listed = self.slot_contact_count[k]
+        if listed <= CONTACTS_KEPT:
+            for c in range(listed):
+                visit(k, self.slot_contacts[k, c], ret)
+        else:
+            self.neighbors.for_each_candidate(k, p, visit, ret)
+
     @ti.kernel
     def _project(
         self,
         model: ti.template(),
         state: ti.template(),
-        src: ti.template(),
+        sweep: ti.template(),
         dst: ti.template(),
         first: ti.template(),
         t_end: float,
     ):
-        if ti.static(first and self._per_slot):
-            # A pass of its own (top-level loops run one after the other): the sweep below reads the
-            # neighbours' radii and masses, which must be this build's, not the last one's.
-            for k in range(self.neighbors.size[None]):
-                self._gather(model, state, k)
-        for k in range(self.neighbors.size[None]):
-            if ti.static(first and not self._per_slot):
-                self._gather(
-                    model, state, k
-                )  # only v*, which no sweep of positions reads: fused, one pass less
+        ns = self.neighbors
+        if ti.static(first):
+            if ti.static(self._per_slot):
+                # A pass of its own (top-level loops run one after the other): the pass below reads the
+                # neighbours' radii and masses, which must be this build's, not the last one's.
+                for k in range(ns.size[None]):
+                    self._gather(model, state, k)
+            # Every sphere's contacts in the prediction, before any sweep reads a neighbour's count.
+            for k in range(ns.size[None]):
+                if ti.static(not self._per_slot):
+                    self._gather(model, state, k)  # only v*, which no count reads: fused, one pass less
+                acc = self._position_acc(
+                    x=self.x_pred[k], r=self.slot_radius(k), w=0.0, dx=ti.Vector.zero(float, 3), n=0, c=0
+                )
+                ns.for_each_candidate(k, acc.x, self._visit_count, acc)
+                self.slot_contact_count[k] = acc.n
+        for k in range(ns.size[None]):
             acc = self._position_acc(
-                x=src.x[k],
+                x=sweep.src.x[k],
                 r=self.slot_radius(k),
                 w=self.slot_inv_mass(k),
                 dx=ti.Vector.zero(float, 3),
                 n=0,
+                c=sweep.prev.count[k],
             )
-            self.neighbors.for_each_candidate(k, acc.x, src.visit, acc)
             if ti.static(first):
-                self.slot_contact_count[k] = acc.n
-            x = acc.x
-            if acc.n > 0:
-                x += acc.dx * ti.min(1.0, self.relaxation / acc.n)
+                self._listed(k, sweep.visit, acc, self.x_pred[k])
+            else:
+                # Candidates from the cells around the sphere's place in the prediction: the same cells
+                # for both spheres of a pair (their current positions may have crossed a cell boundary).
+                ns.for_each_candidate(k, self.x_pred[k], sweep.visit, acc)
+                sweep.src.count[k] = acc.n
+            x = acc.x + acc.dx
             if ti.static(model.collider_count > 0):
                 x, _ = project_spheres(model.colliders, x, ti.Vector.zero(float, 3), acc.r, 0.0, t_end)
             dst.x[k] = x
@@ -286,6 +365,22 @@ class ContactSpheres:
     @ti.kernel
     def _velocities(self, state: ti.template(), side: ti.template(), inv_h: float, step: ti.i32):
         ns = self.neighbors
+        # Each sphere's count of approaching contacts, before any sphere reads a neighbour's.
+        for k in range(ns.size[None]):
+            acc = self._velocity_acc(
+                x=self.x_pred[k],
+                v=self.v_pred[k],
+                xp=self.x_pred[k],
+                vp=self.v_pred[k],
+                r=self.slot_radius(k),
+                w=self.slot_inv_mass(k),
+                inv_h=inv_h,
+                dv=ti.Vector.zero(float, 3),
+                n=0,
+                c=0,
+            )
+            self._listed(k, self._visit_approach_count, acc, acc.xp)
+            self.slot_approach_count[k] = acc.n
         for k in range(ns.size[None]):
             x = side.x[k]
             acc = self._velocity_acc(
@@ -298,16 +393,10 @@ class ContactSpheres:
                 inv_h=inv_h,
                 dv=ti.Vector.zero(float, 3),
                 n=0,
+                c=self.slot_approach_count[k],
             )
-            listed = self.slot_contact_count[k]
-            if listed <= CONTACTS_KEPT:
-                for c in range(listed):
-                    side.visit_velocity(k, self.slot_contacts[k, c], acc)
-            else:
-                ns.for_each_candidate(k, acc.xp, side.visit_velocity, acc)
-            v = acc.v
-            if acc.n > 0:
-                v += acc.dv / acc.n
+            self._listed(k, side.visit_velocity, acc, acc.xp)
+            v = acc.v + acc.dv
             total = x.sum() + v.sum()
             if ti.math.isnan(total) or ti.math.isinf(total):
                 ti.atomic_add(state.nonfinite_count[None], 1)
@@ -350,7 +439,7 @@ class ContactSpheres:
             self._gather(model, state, k)
         for k in range(self.neighbors.size[None]):
             p = self._position_acc(
-                x=self.x_pred[k], r=self.slot_radius(k), w=0.0, dx=ti.Vector.zero(float, 3), n=0
+                x=self.x_pred[k], r=self.slot_radius(k), w=0.0, dx=ti.Vector.zero(float, 3), n=0, c=0
             )
             self.neighbors.for_each_candidate(k, p.x, self._overlap_visit, p)
             ti.atomic_max(self.overlap[None], p.dx[0])

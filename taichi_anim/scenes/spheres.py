@@ -11,6 +11,7 @@ from ..io.export import frame_path, write_point_cloud
 from ..render import fit_camera, render_png
 from .base import Scene, _box_edges
 
+FRAME_DT = 1 / 30  # [s]
 SLOW, FAST = np.array([0.2, 0.35, 0.75]), np.array([1.0, 0.6, 0.15])
 
 
@@ -49,11 +50,17 @@ def build(
     integrator: str = "symplectic_euler",
     particles: int = 100_000,
     radius: float = 0.006,
+    steps_per_frame: int = 200,
+    sweeps: int = 1,
 ) -> Scene:
     """`particles` spheres of `radius` [m] on a jittered lattice in a column inside a 1.2 x 1.2 m box,
-    0.3 m above its floor, falling with random velocities; dt 1/2400 s, one projection sweep per step (a
-    10^5-sphere pile is about 9 layers deep here; benchmarks/sphere_piles.py shows the largest overlap
-    left against dt and sweeps)."""
+    0.3 m above its floor, falling with random velocities; 1/30 s frames of `steps_per_frame` steps (dt
+    1/6000 s by default) with `sweeps` projection sweeps each. 200 x 1 was chosen by measurement
+    (benchmarks/sphere_demo.py; 10^5 spheres, first frames): the closest pair stays at 0.94 of a diameter
+    or more through the column's splash, where 160 x 1 kept 0.904 d and the old 80 x 1 left 0.75-0.84 d;
+    more sweeps cost more per unit of separation gained (80 x 4 kept 0.93 d at 20,000 spheres, as 160 x 1
+    did). benchmarks/sphere_piles.py shows the largest overlap left in a settled pile against dt and
+    sweeps."""
     rng = np.random.default_rng(seed)
     spacing = 2.2 * radius
     side = max(2, min(60, round(1.3 * particles ** (1 / 3))))  # at most 0.8 m wide for 6 mm spheres
@@ -68,7 +75,7 @@ def build(
     b.add_force_gravity()
     b.add_particles(x, v, mass=1e-3, radius=radius)
     b.add_collider_box(lo, hi, restitution=0.3, friction=0.4)
-    b.add_sphere_contacts(restitution=0.5, friction=0.4, iterations=1)
+    b.add_sphere_contacts(restitution=0.5, friction=0.4, iterations=sweeps)
     model = b.finalize(seed=seed)
     return SpheresScene(
         name="spheres",
@@ -76,10 +83,15 @@ def build(
         model=model,
         state=model.state(),
         integrator=make_integrator(integrator, check_every=80),
-        dt=1 / 2400,
-        substeps=80,
+        dt=FRAME_DT / steps_per_frame,
+        substeps=steps_per_frame,
         bounds=(lo, hi),
         point_radius=radius,
-        options={"particles": particles, "radius": radius},
+        options={
+            "particles": particles,
+            "radius": radius,
+            "steps_per_frame": steps_per_frame,
+            "sweeps": sweeps,
+        },
         frames=60,
     )
