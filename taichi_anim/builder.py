@@ -508,7 +508,8 @@ class Builder:
         restitution e in [0, 1] (the course's formula is e = 1/2) along the line of centres; friction:
         Coulomb coefficient; iterations: Jacobi sweeps of position projection per step (for piles, more
         substeps beat more iterations: the overlap a sweep leaves scales with dt^2); relaxation omega in
-        [1, 2]: a sphere with n overlaps moves min(1, omega/n) times their summed corrections;
+        [1, 2]: each pair's correction is scaled by min(1, omega / the mean of its two spheres' contact
+        counts), the same on both sides, so momentum is conserved for any number of sweeps;
         rest_speed [m/s]: slower impacts do not bounce (so piles come to rest); continuous: substeps so
         fast spheres cannot pass through each other or a wall (at most max_substeps); neighbor_search:
         "auto" (brute force for small scenes, a grid over the container box if there is one, else a

@@ -244,7 +244,8 @@ class Model:
 
     def energy(self, x, v=None) -> dict:
         """Energies [J] at positions x (N,3) and velocities v (N,3): kinetic (if v is given), and each
-        term's that has one (gravity's potential, springs', membrane's, bending's), keyed by type."""
+        element term's that has one (springs', membrane's, bending's), keyed by type. Gravity's potential
+        -sum m g.x is not included: statics and the watchdog add it where they need it."""
         x = np.asarray(x, dtype=np.float64)
         m = self.particle_masses()
         out = {}

@@ -89,7 +89,7 @@ def test_two_integrators_on_one_model_share_no_scratch():
     assert not np.array_equal(alone[0], alone[1])
 
 
-@pytest.mark.slow  # eight integrators compiled for four mixed terms: ~100 s; orders on cloth are in the default run
+@pytest.mark.slow  # eight integrators compiled for four mixed terms (~100 s); cloth orders: default run
 def test_mixed_terms_converge_under_every_integrator():
     """Springs + membrane + bending + aerodynamics on one sheet, 0.05 s: every explicit method against
     an RK4 reference at a 16x smaller step, errors ordered by the methods' orders; implicit Euler with
