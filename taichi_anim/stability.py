@@ -496,8 +496,13 @@ def auto_substeps(
     record.update(asdict(est), limit=limit)
     if math.isnan(est.bound):
         record["bound"] = None  # not computed (see frequency); JSON has no NaN
-    n = 1 if limit is None or math.isinf(limit) else math.ceil(frame_dt / (safety * limit) - 1e-9)
-    if limit is not None and limit <= 0.0 or n > MAX_AUTO_SUBSTEPS:
+    if limit is None or math.isinf(limit):
+        n = 1
+    elif limit <= 0.0:
+        n = math.inf  # e.g. explicit Euler on an undamped oscillator: no step keeps its energy bounded
+    else:
+        n = math.ceil(frame_dt / (safety * limit) - 1e-9)
+    if n > MAX_AUTO_SUBSTEPS:
         raise ParameterError(
             f"substeps='auto': {integrator.name} needs {n if limit else 'unbounded'} substeps per "
             f"{frame_dt:.3g} s on this model (stability limit {limit:.3g} s, highest frequency "

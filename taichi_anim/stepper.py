@@ -4,6 +4,8 @@ release of dead slots), trails, time, and what happens when a step diverges (rai
 retry) — while a method (integrators/) supplies only its update. Newton separates `solver.step(...)`
 from its collision pipeline the same way."""
 
+import math
+
 import taichi as ti
 
 from . import stability, validate
@@ -15,6 +17,8 @@ from .errors import DivergenceError, ParameterError
 from .health import Health
 from .state import State
 from .watchdog import Watchdog, watch_particle
+
+MAX_STABLE_SPLIT = 4096  # the most substeps the retry policy takes from the stability estimate
 
 
 @ti.func
@@ -104,18 +108,22 @@ class Stepper:
             return
         state.save(self._backup)
         method, split = self._recovery or (self.integrator, 1)
-        error = self._attempt(state, dt, method, split)
-        if error is not None:
-            self._recover(state, dt, error, method, split)
+        try:
+            error = self._attempt(state, dt, method, split)
+            if error is not None:
+                self._recover(state, dt, error, method, split)
+        except BaseException:  # any failure (a solver giving up under "raise", Ctrl-C): the last good state
+            state.restore(self._backup)
+            raise
         if self.self_contact is not None and state.step_count % self.integrator.check_every == 0:
             self.self_contact.read_stats()
 
-    def check(self, state) -> None:
+    def check(self, state, *, energy: bool = False) -> None:
         """Read the divergence watch now (a device sync): raises DivergenceError if a step so far
         diverged (non-finite or out-of-bounds particles; energy growth, evaluated every
-        `watchdog.energy_every` steps). The runner calls it before exporting a frame, so nothing after a
-        bad step is written."""
-        error = self._divergence(state) or self.watchdog.energy_error(state)
+        `watchdog.energy_every` steps, or now with energy=True). The runner calls it with energy=True
+        before exporting a frame, so nothing after a bad step is written."""
+        error = self._divergence(state) or self.watchdog.energy_error(state, now=energy)
         if error is not None:
             raise error
         if self.self_contact is not None:
@@ -141,6 +149,9 @@ class Stepper:
         policy = self.policy
         if policy.divergence == "retry":
             attempts = [(self.integrator, 2**r) for r in range(1, policy.max_retries + 1)]
+            stable = self._stable_split(dt)
+            if stable is not None and stable > attempts[-1][1]:
+                attempts.append((self.integrator, stable))  # what the stability guard says is enough
         else:
             attempts = [(self._fallback, 2**r) for r in range(policy.max_retries)]
         tried = [(m, n) for m, n in attempts if m is not method or n > split]
@@ -174,6 +185,15 @@ class Stepper:
             quantity=first.quantity,
             value=first.value,
         )
+
+    def _stable_split(self, dt: float) -> int | None:
+        """Substeps within the stability limit the guard estimated for this model (None if it made no
+        estimate or the method has no limit)."""
+        cached = getattr(self, "stability_limit", None)
+        limit = None if cached is None else cached[1]
+        if not limit or not math.isfinite(limit):
+            return None
+        return min(math.ceil(dt / (stability.AUTO_SAFETY * limit)), MAX_STABLE_SPLIT)
 
     def _step(self, state, dt: float, method, split: int) -> None:
         """Emission, the method's advance in substeps (sphere contacts' own times `split`), trails,

@@ -269,12 +269,14 @@ class Watchdog:
             return POSITION, float(d.max())
         return SPEED, speed
 
-    def energy_error(self, state):
+    def energy_error(self, state, *, now: bool = False):
         """The DivergenceError for energy grown beyond the allowed gain, or None; the energy is
-        evaluated only when due (every `energy_every` steps)."""
+        evaluated only when due (every `energy_every` steps), or at once with now=True."""
         if self._energy is None or state.energy_start is None:
             return None
-        if state.step_count - state.energy_step < self.energy_every:
+        if state.step_count == state.energy_step or (
+            not now and state.step_count - state.energy_step < self.energy_every
+        ):
             return None
         state.energy_step = state.step_count
         limit = self.energy_limit()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from .. import validate
+from ..errors import ParameterError
 from .adaptive import IntegratorAdaptive
 from .base import Integrator
 from .implicit_euler import IntegratorImplicitEuler
@@ -30,7 +31,13 @@ INTEGRATORS = {
 def make_integrator(name: str, **options) -> Integrator:
     """An integrator by name (see INTEGRATORS) with keyword options; unknown names raise ParameterError."""
     validate.choice("integrator", name, INTEGRATORS)
-    return INTEGRATORS[name](**options)
+    try:
+        return INTEGRATORS[name](**options)
+    except TypeError as e:  # an option this method does not take: name it instead of a raw TypeError
+        if "unexpected keyword argument" not in str(e):
+            raise
+        bad = str(e).split("argument")[-1].strip()
+        raise ParameterError(f"integrator {name!r} has no option {bad} (got {options!r})") from None
 
 
 __all__ = [

@@ -102,7 +102,7 @@ def _simulate(scene, stepper, frames, out, export, progress, viewer, run, tqdm) 
                         run["step_times"].append(dt_wall)
                 # The watch may be read only every check_every steps: read it now, so a frame after a
                 # diverged step is never written.
-                stepper.check(state)
+                stepper.check(state, energy=True)
                 if export:
                     t0 = time.perf_counter()
                     scene.export_frame(out, frame)

@@ -66,9 +66,12 @@ def test_cli_arch_auto_runs_one_frame(tmp_path):
     )  # fmt: skip
     assert out.returncode == 0, (out.returncode, out.stderr[-2000:])
     record = json.loads((out_dir / "run.json").read_text())
-    text = json.dumps(record)
-    assert '"arch_requested": "auto"' in text
-    assert '"arch": "cpu"' in text or '"arch": "cuda"' in text or '"arch": "vulkan"' in text
+    choice = record["settings"]["arch_choice"]
+    assert record["settings"]["arch_requested"] == "auto" and choice["requested"] == "auto"
+    assert choice["chosen"] == record["timings"]["arch"] and choice["chosen"] in ("cpu", "cuda", "vulkan")
+    assert [p["arch"] for p in choice["probes"]][:1] == ["cuda"]  # the GPU search ran in a child process
+    if choice["chosen"] == "cpu":
+        assert choice["reason"] and "running on the CPU" in out.stderr
 
 
 def test_a_crashing_probe_does_not_take_the_process_down():
@@ -77,6 +80,7 @@ def test_a_crashing_probe_does_not_take_the_process_down():
     runtime._probes.pop("opengl", None)
     result = runtime.probe_arch("opengl")
     assert set(result) == {"arch", "ok", "detail", "seconds"} and result["arch"] == "opengl"
+    assert isinstance(result["ok"], bool) and result["detail"]
     if not result["ok"] and "crashed" in result["detail"]:
         assert "signal 11" in result["detail"]
     runtime._probes.pop("opengl", None)  # not one of the candidates: keep arch_choice() as the app sees it

@@ -169,10 +169,46 @@ def test_retry_policy_gives_up_and_leaves_the_last_good_state():
     ta.init("cpu", precision="f64")
     model, state = spring_pair()
     x0, v0 = state.particle_x.to_numpy(), state.particle_v.to_numpy()
-    integ = ta.make_integrator("symplectic_euler", policy={"divergence": "retry", "max_retries": 2})
+    # stability "ignore": no estimate, so no stable substep count to fall back on (see the next test)
+    policy = {"divergence": "retry", "max_retries": 2, "stability": "ignore"}
+    integ = ta.make_integrator("symplectic_euler", policy=policy)
     with pytest.raises(ta.DivergenceError, match="not recovered") as err:
         integ.step(model, state, 1 / 60)
     assert err.value.step == 1 and state.step_count == 0 and state.time == 0.0
+    assert np.array_equal(state.particle_x.to_numpy(), x0) and np.array_equal(state.particle_v.to_numpy(), v0)
+
+
+def test_retry_takes_the_stable_substep_count_when_halvings_run_out():
+    """Pass: with max_retries 2 (2 and 4 substeps, both unstable) but the stability guard's estimate at
+    hand, the retry policy redoes the step in ceil(dt / (0.8 x limit)) substeps, symplectic Euler's limit
+    being 2 / w with w = sqrt(k / m): the step recovers, with that count recorded."""
+    ta.init("cpu", precision="f64")
+    model, state = spring_pair()
+    integ = ta.make_integrator("symplectic_euler", policy={"divergence": "retry", "max_retries": 2})
+    with pytest.warns(ta.StabilityWarning):
+        integ.step(model, state, 1 / 60)
+    events = integ.stepper_for(model).health.to_dict()["events"]
+    recovered = [e for e in events if e["kind"] == "divergence_recovered"]
+    limit = 2.0 / math.sqrt(1e5 / 0.01)
+    assert len(recovered) == 1 and recovered[0]["substeps"] == math.ceil((1 / 60) / (0.8 * limit))
+    assert (
+        state.step_count == 1
+        and abs(np.linalg.norm(np.diff(state.particle_x.to_numpy(), axis=0)) - 0.1) < 0.01
+    )
+
+
+def test_a_solver_giving_up_under_a_recovering_policy_leaves_the_last_good_state():
+    """Pass: RK45 capped at 3 rejections per step on the spring example, with policy nonconvergence =
+    "raise" and divergence = "retry": the ConvergenceError propagates and the state is bitwise the state
+    before the step (no half-done emission, substeps or time)."""
+    ta.init("cpu", precision="f64")
+    model, state = spring_pair()
+    x0, v0 = state.particle_x.to_numpy(), state.particle_v.to_numpy()
+    policy = {"divergence": "retry", "nonconvergence": "raise", "stability": "ignore"}
+    integ = ta.make_integrator("rk45", max_rejected=3, policy=policy)
+    with pytest.raises(ta.ConvergenceError):
+        integ.step(model, state, 1 / 60)
+    assert state.step_count == 0 and state.time == 0.0
     assert np.array_equal(state.particle_x.to_numpy(), x0) and np.array_equal(state.particle_v.to_numpy(), v0)
 
 

@@ -284,3 +284,11 @@ def test_largest_seed_is_accepted():
     """Pass: 2**32 - 1 and a NumPy integer seed are valid."""
     assert two_particles().finalize(seed=2**32 - 1).seed == 2**32 - 1
     assert two_particles().finalize(seed=np.uint32(5)).seed == 5
+
+
+@pytest.mark.parametrize("name", ["implicit_euler", "rk45", "symplectic_euler"])
+def test_unknown_integrator_option_names_it(name):
+    """Pass: an option the method does not take is a ParameterError naming the method and the option,
+    not a raw TypeError."""
+    with pytest.raises(ta.ParameterError, match=rf"{name}.*bogus"):
+        ta.make_integrator(name, bogus=1)
