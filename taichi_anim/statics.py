@@ -279,6 +279,6 @@ def _newton_step(model, state, integ, xf, vf, xo, vo, x, zero_f, h, eta, floor) 
         integ.advance(model, state, xf, vf, xo, vo, state.time, state.time, h, state.step_count + 1, False)
         return xo.to_numpy().astype(np.float64) - x
     integ.linear_solver.tol = eta
-    integ._assemble(model, integ.system, xf, vf, state.time, h)
+    integ._assemble(model, integ.system, xf, vf, state.time, h, False)
     integ.last_solve = integ.linear_solver.solve(integ.system, atol=h * floor)
     return h * integ.system.solution.to_numpy().astype(np.float64)

@@ -100,6 +100,9 @@ class Stepper:
             stability.guard(self, state, dt)
             self._guarded_dt = dt
             self._recovery = None
+        if self.watchdog.derived is None and self.contacts is not None:
+            overlap = self.contacts.overlap_stats(model, state)[0]  # spheres placed overlapping
+            self.watchdog.separation_speed = overlap / dt
         self.watchdog.arm(state, dt)
         if self._backup is None:
             self._step(state, dt, self.integrator, 1)

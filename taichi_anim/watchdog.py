@@ -12,7 +12,8 @@ kernel, `watch_particle`, at the cost of a few flops per particle):
   the time terms are what a particle leaving the scene at v_ref and falling freely can reach, so a long
   free fall is not an explosion.
 * speed: |v| <= V(t) = SPEED_FACTOR v_ref + |g| t, with v_ref the largest speed the scene can supply:
-  initial and emitter speeds, wind, moving colliders and attachments, free fall across the scene
+  initial and emitter speeds, wind, moving colliders and attachments, spheres placed overlapping
+  pushed apart in the first step (overlap / dt), free fall across the scene
   (sqrt(2 |g| H), H its box diagonal), the initial elastic energy put into the lightest particle
   (sqrt(2 E_el / m_min)), and at least 1 m/s. Explosions grow geometrically (by (h w)^2 per step for a
   stiff spring past its limit), so a generous factor costs only a step or two of detection.
@@ -106,6 +107,9 @@ class Watchdog:
         self.speed = None  # [m/s] fixed limit, inf (off) or None (derived)
         self.energy_tolerance = None  # [J] allowed energy gain, inf (off) or None (derived)
         self.energy_every = ENERGY_EVERY
+        # [m/s] the speed at which sphere contacts push initially overlapping spheres apart (overlap / dt:
+        # a projection turns an overlap into velocity); set by the Stepper before the first step.
+        self.separation_speed = 0.0
         self.version = 0  # bumped on every change: states rewrite their limit field
         self.derived = None  # dict of the derived quantities, made on the first `arm`
         self._energy = None  # E(x, v) -> J, or None when the scene has no energy
@@ -136,7 +140,7 @@ class Watchdog:
         start energy, and write the limits into its field when they changed or the step ends past the
         window they were written for."""
         if self.derived is None:
-            self.derived = scene_bounds(self.model, state)
+            self.derived = scene_bounds(self.model, state, self.separation_speed)
             self._energy = energy_function(self.model)
         if state.watch_version != self.version or state.time + dt > state.watch_until:
             # The bounds grow with time; the kernel tests constants: those at the end of a window in
@@ -296,15 +300,16 @@ class Watchdog:
         )
 
 
-def scene_bounds(model, state) -> dict:
-    """The scene's box (centre, half-size), reference speed, |g| and energy scale (see the module doc)."""
+def scene_bounds(model, state, separation_speed: float = 0.0) -> dict:
+    """The scene's box (centre, half-size), reference speed, |g| and energy scale (see the module doc);
+    separation_speed [m/s]: how fast contacts push the start's overlapping spheres apart."""
     from .terms import AeroTriangles, AnchorSpring, Drag, Gravity
 
     alive = state.alive_mask()
     x = state.particle_x.to_numpy().astype(np.float64)[alive]
     v = state.particle_v.to_numpy().astype(np.float64)[alive]
     points = [x.reshape(-1, 3)]
-    speeds = [float(np.max(np.linalg.norm(v, axis=1), initial=0.0))]
+    speeds = [float(np.max(np.linalg.norm(v, axis=1), initial=0.0)), separation_speed]
     for c in model.colliders:
         p, s = _collider_points(c)
         points.append(p)
