@@ -69,7 +69,7 @@ def thrown(centre, count, speed, rng):
     return centre + 0.5 * d, -speed * d + aim, d
 
 
-@pytest.mark.parametrize("shape", ["icosphere", "box"])
+@pytest.mark.parametrize("shape", ["icosphere", pytest.param("box", marks=pytest.mark.slow)])
 def test_fast_particles_and_spheres_never_end_inside_a_closed_mesh_in_backward_mode(shape):
     # 60 m/s at dt = 1/60 s: 1 m per step, across the whole mesh (0.5 to 0.6 m wide) from 0.5 m away.
     # Projection sees only the end points, past the mesh: they tunnel. The swept test must stop every
@@ -166,6 +166,7 @@ def test_mesh_box_and_quad_give_the_contacts_of_the_analytic_box_and_plane(mode)
         assert runs["mesh"][1][:, 48, 1].min() < -1.0
 
 
+@pytest.mark.slow  # ~60-110 s; the moving_mesh demo test carries a cloth on a moving mesh in the default run
 def test_cloth_on_a_moving_and_on_a_deforming_mesh_never_has_a_vertex_inside_and_ends_supported():
     # Left: a box mesh that rises 0.2 m and turns 30 degrees about y between t = 0.2 and 1.2 s. Right: a
     # box mesh whose top face is raised 0.2 m over the same time (vertex keyframes). A cloth falls on
