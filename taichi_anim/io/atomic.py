@@ -174,15 +174,21 @@ def remove_stale_temporaries(folder: str | os.PathLike) -> list[Path]:
     if not folder.is_dir():
         return removed
     for entry in sorted(folder.iterdir()):
-        if TEMPORARY_NAME.match(entry.name) and (entry.is_file() or entry.is_symlink()):
-            try:
-                entry.unlink()
-            except FileNotFoundError:
-                continue
-            except OSError as e:
-                raise output_error(entry, e) from e
+        stale = TEMPORARY_NAME.match(entry.name) and (entry.is_file() or entry.is_symlink())
+        if stale and remove_file(entry):
             removed.append(entry)
     return removed
+
+
+def remove_file(entry: Path) -> bool:
+    """Delete `entry`: True if it was removed, False if it was already gone; OutputError otherwise."""
+    try:
+        entry.unlink()
+    except FileNotFoundError:
+        return False
+    except OSError as e:
+        raise output_error(entry, e) from e
+    return True
 
 
 # ------------------------------------------------------------------------------------ completeness

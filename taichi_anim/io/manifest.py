@@ -35,7 +35,7 @@ from pathlib import Path, PurePath
 import numpy as np
 
 from ..errors import OutputError
-from .atomic import atomic_path, file_record, output_error, remove_stale_temporaries
+from .atomic import atomic_path, file_record, output_error, remove_file, remove_stale_temporaries
 
 MANIFEST_NAME = "run.json"
 SCHEMA = 2
@@ -273,12 +273,6 @@ def prepare_run_folder(out_dir: str | os.PathLike, *, names: Iterable[str] = ())
     for entry in sorted(out.iterdir()):
         if entry.name == MANIFEST_NAME or not (entry.is_file() or entry.is_symlink()):
             continue
-        if entry.name in listed or any(p.fullmatch(entry.name) for p in patterns):
-            try:
-                entry.unlink()
-            except FileNotFoundError:
-                continue
-            except OSError as e:
-                raise output_error(entry, e) from e
+        if (entry.name in listed or any(p.fullmatch(entry.name) for p in patterns)) and remove_file(entry):
             removed.append(entry)
     return removed
