@@ -56,8 +56,9 @@ def make_policy(policy) -> Policy:
 
 
 class Health:
-    """Counters and events of one run. `count(key)` tallies (e.g. "linear_solves", "linear_unconverged");
-    `event(kind, step, message, **data)` records a notable event (kept up to MAX_EVENTS);
+    """Counters and events of one run. `count(key)` tallies (e.g. "linear_solves", "linear_iterations");
+    `event(kind, step, message, **data)` records a notable event (kept up to MAX_EVENTS) and counts it
+    under `kind`;
     `report(kind, step, message, setting, **data)` records an event and applies the policy setting
     (the Policy field name: "nonconvergence" or "stability")."""
 
@@ -71,7 +72,7 @@ class Health:
         self.counts[key] += n
 
     def event(self, kind: str, step: int | None, message: str, **data) -> None:
-        self.counts[f"events.{kind}"] += 1
+        self.counts[kind] += 1  # an event is also a count, under its own kind
         if len(self.events) < MAX_EVENTS:
             self.events.append({"kind": kind, "step": step, "message": message, **data})
 

@@ -201,7 +201,7 @@ def test_guard_estimates_once_per_stepper(monkeypatch):
     for dt in (3e-4, 1e-4):
         integ.step(model, state, dt)
     assert limits == []
-    assert integ.stepper_for(model).health.counts["events.unstable_step"] == 0
+    assert integ.stepper_for(model).health.counts["unstable_step"] == 0
 
 
 def test_auto_substeps_counts():
@@ -270,4 +270,4 @@ def test_guard_skips_models_it_cannot_linearise(monkeypatch):
     integ.step(model, state, 1.0)
     integ.step(model, state, 0.5)
     health = integ.stepper_for(model).health
-    assert health.counts["events.stability_unchecked"] == 1 and health.counts["events.unstable_step"] == 0
+    assert health.counts["stability_unchecked"] == 1 and health.counts["unstable_step"] == 0

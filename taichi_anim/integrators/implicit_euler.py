@@ -146,7 +146,6 @@ class IntegratorImplicitEuler(Integrator):
         health.count("linear_solves")
         health.count("linear_iterations", res.iterations)
         if not res.converged:
-            health.count("linear_unconverged")
             health.report(
                 "linear_unconverged",
                 self._step,
@@ -187,7 +186,6 @@ class IntegratorImplicitEuler(Integrator):
         health.count("newton_solves")
         health.count("newton_iterations", iterations)
         if not done:
-            health.count("newton_unconverged")
             health.report(
                 "newton_unconverged",
                 self._step,

@@ -142,7 +142,6 @@ def fail_step(method, step: int, t: float, h: float, err: float, accepted: int, 
         f"tolerance). The problem is stiff at this step: use implicit_euler, a smaller dt, or looser "
         f"tolerances"
     )
-    method.health.count("adaptive_failed")
     method.health.event("adaptive_failed", step, message, time=t, h=h, accepted=accepted, rejected=rejected)
     if method.policy.nonconvergence == "raise":
         raise ConvergenceError(message)

@@ -161,7 +161,7 @@ def _summary(scene, stepper, out, frames, run, files, complete: bool) -> dict:
 
 
 def health_brief(health: dict | None, *, limit: int = 4) -> str:
-    """The non-zero health counters, e.g. "linear_unconverged 12, events.stability 1", or ""."""
+    """The non-zero health counters, e.g. "linear_unconverged 12, unstable_step 1", or ""."""
     counts = [(k, v) for k, v in sorted(((health or {}).get("counts") or {}).items()) if v]
     text = ", ".join(f"{k} {v}" for k, v in counts[:limit])
     if len(counts) > limit:
