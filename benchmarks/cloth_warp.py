@@ -157,9 +157,7 @@ class EngineRun:
         self.model, self.state, self.integ, self.check = build_engine(cloth)
 
     def simulate(self, dt: float, substeps: int) -> np.ndarray:
-        h = dt / substeps
-        for _ in range(substeps):
-            self.integ.step(self.model, self.state, h)
+        self.integ.step(self.model, self.state, dt, substeps)  # one frame (Stepper.frame_mode)
         return self.state.particle_x.to_numpy()
 
 

@@ -111,6 +111,7 @@ class Model:
         # Small scenes are launch-bound on the CPU: their particle loops run serially (compile-time).
         # A particle's work grows with its springs, which count towards the size.
         work = n + sum(t.entry_count for t in self.element_terms)
+        self.work = work  # the size that decides serial loops and fused frames (Stepper.frame_mode)
         self.serial = serial_loops(work)
 
     def state(self) -> State:

@@ -190,6 +190,11 @@ def backend_name() -> str:
 CPU_SERIAL_BELOW = 20_000
 
 
+def cpu_threads() -> int:
+    """Taichi's CPU thread count in the running program (cpu_max_num_threads)."""
+    return int(impl.current_cfg().cpu_max_num_threads)
+
+
 def serial_loops(count: int) -> bool:
     """Whether kernels over `count` elements should run serially on the current backend."""
     return backend_name() == "cpu" and count < CPU_SERIAL_BELOW

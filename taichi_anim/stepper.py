@@ -8,7 +8,7 @@ import math
 
 import taichi as ti
 
-from . import stability, validate
+from . import runtime, stability, validate
 from .collision import collide
 from .collision.motion import follow_attachments
 from .collision.self_contact import SelfContact
@@ -19,6 +19,10 @@ from .state import State
 from .watchdog import Watchdog, watch_particle
 
 MAX_STABLE_SPLIT = 4096  # the most substeps the retry policy takes from the stability estimate
+# A frame of substeps of a fusable method runs as one serial kernel on the CPU below this much work
+# (particles + element entries): there a parallel launch costs more than its loop (the second core takes
+# ~60 us to join a loop here); above it, one parallel launch per substep (benchmarks/frame_fusion.py).
+FRAME_SERIAL_BELOW = 100_000
 
 
 @ti.func
@@ -64,6 +68,7 @@ class Stepper:
         self.health = Health(self.policy)
         integrator.health = self.health  # solvers inside the method report here
         self._guarded_dt = None  # the step the stability guard last checked
+        self._frame_mode = None  # how a frame of substeps is launched (frame_mode), chosen on first use
         self.watchdog = Watchdog(model)
         # Recovering policies: a backup State (the rollback point) and, for "implicit", the fallback
         # method, both made now so that nothing is allocated mid-run.
@@ -91,11 +96,18 @@ class Stepper:
         opts = model.self_contact
         self.self_contact = None if opts is None else SelfContact(model, **opts)
 
-    def step(self, state, dt: float) -> None:
+    def step(self, state, dt: float, substeps: int = 1) -> None:
+        """Advance `state` by dt [s] in `substeps` equal steps of dt / substeps: the same as that many
+        calls of step(state, dt / substeps), launched as `frame_mode` says (one kernel for the whole
+        frame, one per substep without the per-step Python work, or step by step)."""
         dt = validate.positive("dt", dt)
+        n = validate.count("substeps", substeps, 1)
         model = self.model
         if state.model is not model:
             raise ParameterError("state belongs to another model: make it with this model's state()")
+        if n > 1:
+            self.advance(state, dt / n, n)
+            return
         if dt != self._guarded_dt:
             stability.guard(self, state, dt)
             self._guarded_dt = dt
@@ -120,6 +132,84 @@ class Stepper:
             raise
         if self.self_contact is not None and state.step_count % self.integrator.check_every == 0:
             self.self_contact.read_stats()
+
+    def advance(self, state, h: float, count: int) -> None:
+        """`count` steps of h [s]: the same as `count` calls of step(state, h), launched as frame_mode
+        says (a scene's frame: its substeps at its own step, without re-dividing the frame)."""
+        h = validate.positive("dt", h)
+        count = validate.count("substeps", count, 1)
+        mode = self.frame_mode()["mode"]
+        if count == 1 or mode == "steps":
+            for _ in range(count):
+                self.step(state, h)
+        else:
+            if state.model is not self.model:
+                raise ParameterError("state belongs to another model: make it with this model's state()")
+            self._frame(state, h, count, mode)
+
+    def frame_mode(self) -> dict:
+        """How step(state, dt, substeps) launches a frame, and why (recorded in run.json):
+        "serial_frame": one kernel runs every substep, serially (CPU, work below FRAME_SERIAL_BELOW);
+        "launches": the method's kernel once per substep with nothing else in between; "steps": the
+        full step per substep (what the scene needs between substeps: emission, contacts, moving
+        meshes, trails, rollback, or a multi-stage method)."""
+        if self._frame_mode is None:
+            self._frame_mode = self._choose_frame_mode()
+        return self._frame_mode
+
+    def _choose_frame_mode(self) -> dict:
+        model, method = self.model, self.integrator
+        needs = [
+            why
+            for why, present in (
+                (f"{method.name} prepares stages between substeps", not method.fusable),
+                ("emitters", model.emitter_count > 0),
+                ("sphere contacts", self.contacts is not None),
+                ("self-contact", self.self_contact is not None),
+                ("colliders prepared per step", bool(model._prepared_colliders)),
+                ("trails", model.trail_length > 0),
+                (
+                    f"policy divergence={self.policy.divergence!r} (rollback per step)",
+                    self._backup is not None,
+                ),
+            )
+            if present
+        ]
+        if needs:
+            return {"mode": "steps", "reason": "per-step work: " + ", ".join(needs)}
+        work = model.work
+        if runtime.backend_name() == "cpu" and work < FRAME_SERIAL_BELOW:
+            return {"mode": "serial_frame", "reason": f"work {work} < {FRAME_SERIAL_BELOW} on the CPU"}
+        where = "on the GPU" if runtime.backend_name() != "cpu" else f">= {FRAME_SERIAL_BELOW} on the CPU"
+        return {"mode": "launches", "reason": f"work {work} {where}"}
+
+    def _frame(self, state, h: float, n: int, mode: str) -> None:
+        """n substeps of h without the per-step Python work (frame_mode): the stability guard, the
+        watchdog's bounds for the whole frame, the method's kernel(s), then time, counters and the
+        divergence check as n calls of step(state, h) would leave them."""
+        if h != self._guarded_dt:
+            stability.guard(self, state, h)
+            self._guarded_dt = h
+            self._recovery = None
+        self.watchdog.arm(state, h * n)
+        method, model = self.integrator, self.model
+        first = state.step_count
+        if mode == "serial_frame":
+            method._frame(model, state, state.time, h, n, first + 1)
+            method.evaluations += method.stages * n
+            for _ in range(n):
+                state.time += h
+        else:
+            x, v = state.particle_x, state.particle_v
+            for k in range(n):
+                t = state.time
+                method._final(model, state, x, v, x, v, t, t, h, first + k + 1, True)
+                state.time += h
+            method.evaluations += method.stages * n
+        state.step_count += n
+        every = method.check_every
+        if (state.step_count // every) > (first // every):  # a multiple of check_every passed
+            self.check(state)
 
     def check(self, state, *, energy: bool = False) -> None:
         """Read the divergence watch now (a device sync): raises DivergenceError if a step so far

@@ -39,6 +39,9 @@ class Integrator:
     stages = 1  # force evaluations per advance
     implicit = False  # whether element caches hold linearisations (implicit solves)
     own_caches = True  # False for wrappers whose inner method evaluates the terms
+    # Whether a frame of substeps can run as one kernel: single-stage methods whose advance is the final
+    # kernel alone (no Python-side preparation between substeps).
+    fusable = False
 
     def __init__(
         self,
@@ -70,9 +73,10 @@ class Integrator:
     def _allocate(self, model) -> None:
         """Subclasses allocate their own fields here."""
 
-    def step(self, model, state, dt: float) -> None:
-        """Advance `state` of `model` by dt [s] in place (a Stepper bound to the model, made once)."""
-        self.stepper_for(model).step(state, dt)
+    def step(self, model, state, dt: float, substeps: int = 1) -> None:
+        """Advance `state` of `model` by dt [s] in place, in `substeps` equal steps (a Stepper bound to
+        the model, made once; Stepper.step says how a frame of substeps is launched)."""
+        self.stepper_for(model).step(state, dt, substeps)
 
     def stepper_for(self, model) -> Stepper:
         """The Stepper this integrator steps `model` with (made, and the integrator bound, on first use;
@@ -130,6 +134,25 @@ class Integrator:
                     vo[i] = v1
             elif ti.static(finish and state.has_lifetimes):
                 model.release(state, i)
+
+    @ti.kernel
+    def _frame(
+        self, model: ti.template(), state: ti.template(), t0: float, h: float, count: ti.i32, step0: ti.i32
+    ):
+        """`count` steps of h from t0 in one launch, all loops serial (fusable methods on small models on
+        the CPU, where a launch costs more than the work; Stepper.frame_mode). The same per-particle
+        arithmetic as `_final` with finish=True, so results are bitwise those of `count` launches for
+        forces that do not depend on time (t is t0 + k h here, accumulated in Python there)."""
+        x, v = ti.static(state.particle_x, state.particle_v)
+        ti.loop_config(serialize=True)
+        for k in range(count):
+            t = t0 + k * h
+            self.final_pass(model, x, v, t, h)
+            for i in range(model.particle_count):
+                x0 = x[i]
+                v0 = v[i]
+                x1, v1 = self.update(model, i, x0, v0, t, h)
+                finish_particle(model, state, self.collision_mode, i, x0, v0, x1, v1, t, h, step0 + k)
 
     @ti.kernel
     def _finish_all(

@@ -37,6 +37,7 @@ class IntegratorRungeKutta(Integrator):
         self.name = tableau.name
         self.order = tableau.order
         self.stages = len(tableau.b)
+        self.fusable = self.stages == 1  # explicit Euler: no stage launches between substeps
         self._embedded = tableau.b_low is not None
         self.kx = None  # stage derivatives, (stages-1, N) each: the last stage is never stored
         self.kv = None

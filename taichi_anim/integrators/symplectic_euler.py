@@ -15,6 +15,7 @@ class IntegratorSymplecticEuler(Integrator):
     name = "symplectic_euler"
     order = 1
     stages = 1
+    fusable = True
 
     @ti.func
     def update(self, model: ti.template(), i, x0, v0, t, h):

@@ -1,8 +1,8 @@
 """Shared pieces of the iterative solvers: options, the result record, and reductions without serial
 tasks.
 
-Each solver iteration is a few parallel loops over blocks of rows, and nothing else: a block writes its
-partial dot products into a slot, and the next loop's blocks each add up those partials themselves, in
+Each solver iteration is a few loops over blocks of rows (serial on small CPU systems), and nothing
+else: a block writes its partial dot products into a slot, and the next loop's blocks each add up those partials themselves, in
 the same fixed order, so every block derives the same scalars (alpha, beta, the stopping test) without a
 serial task in between (each costs a kernel launch, tens of microseconds on the CPU). On the CPU the
 order of the sums never depends on the thread count, so a solve gives the same bits with 1 or 2 threads.
@@ -17,9 +17,15 @@ from enum import Enum
 import taichi as ti
 
 from .. import validate
-from ..runtime import backend_name, data_oriented
+from ..runtime import backend_name, cpu_threads, data_oriented
 
 CPU_BLOCK = 256  # rows per block on the CPU (fixed, so results do not depend on the thread count)
+# Below this many rows the block loops run serially on the CPU: a parallel loop costs ~70 us more than a
+# serial one here (thread-pool round trip, paid even when the loop is a single task), more than a
+# 4096-row loop's work; above it the loops are spread over real tasks (bind). Measured by
+# benchmarks/cloth_implicit.py (64^2: serial faster; 128^2: parallel faster).
+CPU_PARALLEL_ROWS = 8192
+TASK_ITEMS = 512  # Taichi's CPU range-for splits a loop into tasks of at least this many iterations
 SLOTS = 5  # START (b.b, r.r, r.z of the initial residual) and two parity-alternating pairs per solver
 
 
@@ -97,6 +103,14 @@ class LinearSolver:
         self.block = CPU_BLOCK if cpu else 1
         self.blocked = cpu
         self.block_count = math.ceil(n / self.block)
+        # A loop over blocks runs as `for t in range(block_count * spread)`, block t // spread at every
+        # spread-th t: Taichi cuts a CPU loop into tasks of >= TASK_ITEMS iterations, so a loop over a few
+        # dozen blocks would be one task on one thread; spreading them makes 2 tasks per thread.
+        self.serial_blocks = cpu and n < CPU_PARALLEL_ROWS
+        self.spread = 1
+        if cpu and not self.serial_blocks:
+            threads = max(1, cpu_threads())
+            self.spread = max(1, math.ceil(TASK_ITEMS * 2 * threads / self.block_count))
         self.partial = ti.Vector.field(3, float, (SLOTS, self.block_count)) if cpu else None
         self.sums = ti.Vector.field(3, float, SLOTS)  # GPU: the slots themselves
         self.status = ti.field(ti.i32, 2)  # done flag, iterations

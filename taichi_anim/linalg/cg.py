@@ -45,23 +45,26 @@ class LinearSolverCG(LinearSolver):
     def _start(self, system: ti.template(), warm: ti.template()):
         x = ti.static(system.solution)
         self.reset()
-        for blk in range(self.block_count):
-            s = ti.Vector.zero(float, 3)
-            for i in range(blk * self.block, self.row_end(blk)):
-                b = system.rhs[i]
-                r = b
-                if ti.static(warm):
-                    r = b - system.apply(i, x)
-                else:
-                    x[i] = ti.Vector.zero(float, 3)
-                z = self._z(system, i, r)
-                self.r[i] = r
-                self.z[i] = z
-                self.p[i] = z
-                s += ti.Vector([b.dot(b), r.dot(r), r.dot(z)])
-            self.store(START, blk, s)
-            # The residual of "iteration -1" for the first stopping test and beta.
-            self.store(R1, blk, ti.Vector([s[1], s[2], 0.0]))
+        ti.loop_config(serialize=self.serial_blocks)
+        for t in range(self.block_count * self.spread):  # see LinearSolver.bind
+            if t % self.spread == 0:
+                blk = t // self.spread
+                s = ti.Vector.zero(float, 3)
+                for i in range(blk * self.block, self.row_end(blk)):
+                    b = system.rhs[i]
+                    r = b
+                    if ti.static(warm):
+                        r = b - system.apply(i, x)
+                    else:
+                        x[i] = ti.Vector.zero(float, 3)
+                    z = self._z(system, i, r)
+                    self.r[i] = r
+                    self.z[i] = z
+                    self.p[i] = z
+                    s += ti.Vector([b.dot(b), r.dot(r), r.dot(z)])
+                self.store(START, blk, s)
+                # The residual of "iteration -1" for the first stopping test and beta.
+                self.store(R1, blk, ti.Vector([s[1], s[2], 0.0]))
 
     @ti.kernel
     def _iterate(
@@ -78,38 +81,47 @@ class LinearSolverCG(LinearSolver):
             pq_slot = ti.static(PQ0 if k % 2 == 0 else PQ1)
             r_new = ti.static(R0 if k % 2 == 0 else R1)
             r_old = ti.static(R1 if k % 2 == 0 else R0)
-            for blk in range(self.block_count):
-                if self.status[0] == 0:
-                    bb = self.total(START)[0]
-                    rr = self.total(r_old)[0]
-                    stop = self.converged(rr, bb, tol, floor) or base + k >= cap
-                    if not self.finish(blk, base + k, rr, bb, stop):
-                        self.clear(r_new, blk)
+            ti.loop_config(serialize=self.serial_blocks)
+            for t in range(self.block_count * self.spread):  # see LinearSolver.bind
+                if t % self.spread == 0:
+                    blk = t // self.spread
+                    if self.status[0] == 0:
+                        bb = self.total(START)[0]
+                        rr = self.total(r_old)[0]
+                        stop = self.converged(rr, bb, tol, floor) or base + k >= cap
+                        if not self.finish(blk, base + k, rr, bb, stop):
+                            self.clear(r_new, blk)
+                            s = ti.Vector.zero(float, 3)
+                            for i in range(blk * self.block, self.row_end(blk)):
+                                q = system.apply(i, self.p)
+                                self.q[i] = q
+                                s[0] += self.p[i].dot(q)
+                            self.store(pq_slot, blk, s)
+            ti.loop_config(serialize=self.serial_blocks)
+            for t in range(self.block_count * self.spread):  # see LinearSolver.bind
+                if t % self.spread == 0:
+                    blk = t // self.spread
+                    if self.status[0] == 0:
+                        pq = self.total(pq_slot)[0]
+                        alpha = 0.0
+                        if pq > 0.0:  # p = 0 only when the residual is 0 on the free rows
+                            alpha = self.total(r_old)[1] / pq
                         s = ti.Vector.zero(float, 3)
                         for i in range(blk * self.block, self.row_end(blk)):
-                            q = system.apply(i, self.p)
-                            self.q[i] = q
-                            s[0] += self.p[i].dot(q)
-                        self.store(pq_slot, blk, s)
-            for blk in range(self.block_count):
-                if self.status[0] == 0:
-                    pq = self.total(pq_slot)[0]
-                    alpha = 0.0
-                    if pq > 0.0:  # p = 0 only when the residual is 0 on the free rows
-                        alpha = self.total(r_old)[1] / pq
-                    s = ti.Vector.zero(float, 3)
-                    for i in range(blk * self.block, self.row_end(blk)):
-                        x[i] += alpha * self.p[i]
-                        r = self.r[i] - alpha * self.q[i]
-                        z = self._z(system, i, r)
-                        self.r[i] = r
-                        self.z[i] = z
-                        s += ti.Vector([r.dot(r), r.dot(z), 0.0])
-                    self.store(r_new, blk, s)
-                    self.clear(ti.static(PQ1 if k % 2 == 0 else PQ0), blk)
-            for blk in range(self.block_count):
-                if self.status[0] == 0:
-                    rz_old = self.total(r_old)[1]
-                    beta = self.total(r_new)[1] / ti.max(rz_old, 1e-30)
-                    for i in range(blk * self.block, self.row_end(blk)):
-                        self.p[i] = self.z[i] + beta * self.p[i]
+                            x[i] += alpha * self.p[i]
+                            r = self.r[i] - alpha * self.q[i]
+                            z = self._z(system, i, r)
+                            self.r[i] = r
+                            self.z[i] = z
+                            s += ti.Vector([r.dot(r), r.dot(z), 0.0])
+                        self.store(r_new, blk, s)
+                        self.clear(ti.static(PQ1 if k % 2 == 0 else PQ0), blk)
+            ti.loop_config(serialize=self.serial_blocks)
+            for t in range(self.block_count * self.spread):  # see LinearSolver.bind
+                if t % self.spread == 0:
+                    blk = t // self.spread
+                    if self.status[0] == 0:
+                        rz_old = self.total(r_old)[1]
+                        beta = self.total(r_new)[1] / ti.max(rz_old, 1e-30)
+                        for i in range(blk * self.block, self.row_end(blk)):
+                            self.p[i] = self.z[i] + beta * self.p[i]

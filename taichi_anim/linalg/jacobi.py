@@ -28,14 +28,17 @@ class LinearSolverJacobi(LinearSolver):
     def _start(self, system: ti.template(), warm: ti.template()):
         x = ti.static(system.solution)
         self.reset()
-        for blk in range(self.block_count):
-            s = ti.Vector.zero(float, 3)
-            for i in range(blk * self.block, self.row_end(blk)):
-                if ti.static(not warm):
-                    x[i] = ti.Vector.zero(float, 3)
-                b = system.rhs[i]
-                s[0] += b.dot(b)
-            self.store(START, blk, s)
+        ti.loop_config(serialize=self.serial_blocks)
+        for t in range(self.block_count * self.spread):  # see LinearSolver.bind
+            if t % self.spread == 0:
+                blk = t // self.spread
+                s = ti.Vector.zero(float, 3)
+                for i in range(blk * self.block, self.row_end(blk)):
+                    if ti.static(not warm):
+                        x[i] = ti.Vector.zero(float, 3)
+                    b = system.rhs[i]
+                    s[0] += b.dot(b)
+                self.store(START, blk, s)
 
     @ti.kernel
     def _iterate(
@@ -50,20 +53,26 @@ class LinearSolverJacobi(LinearSolver):
         x = ti.static(system.solution)
         for k in ti.static(range(unroll)):
             r_slot = ti.static(R0 if k % 2 == 0 else R1)
-            for blk in range(self.block_count):
-                if self.status[0] == 0:
-                    s = ti.Vector.zero(float, 3)
-                    for i in range(blk * self.block, self.row_end(blk)):
-                        r = system.rhs[i] - system.apply(i, x)
-                        self.r[i] = r
-                        s[0] += r.dot(r)
-                    self.store(r_slot, blk, s)
-                    self.clear(ti.static(R1 if k % 2 == 0 else R0), blk)
-            for blk in range(self.block_count):
-                if self.status[0] == 0:
-                    bb = self.total(START)[0]
-                    rr = self.total(r_slot)[0]
-                    stop = self.converged(rr, bb, tol, floor) or base + k >= cap
-                    if not self.finish(blk, base + k, rr, bb, stop):
+            ti.loop_config(serialize=self.serial_blocks)
+            for t in range(self.block_count * self.spread):  # see LinearSolver.bind
+                if t % self.spread == 0:
+                    blk = t // self.spread
+                    if self.status[0] == 0:
+                        s = ti.Vector.zero(float, 3)
                         for i in range(blk * self.block, self.row_end(blk)):
-                            x[i] += system.precondition(i, self.r[i])
+                            r = system.rhs[i] - system.apply(i, x)
+                            self.r[i] = r
+                            s[0] += r.dot(r)
+                        self.store(r_slot, blk, s)
+                        self.clear(ti.static(R1 if k % 2 == 0 else R0), blk)
+            ti.loop_config(serialize=self.serial_blocks)
+            for t in range(self.block_count * self.spread):  # see LinearSolver.bind
+                if t % self.spread == 0:
+                    blk = t // self.spread
+                    if self.status[0] == 0:
+                        bb = self.total(START)[0]
+                        rr = self.total(r_slot)[0]
+                        stop = self.converged(rr, bb, tol, floor) or base + k >= cap
+                        if not self.finish(blk, base + k, rr, bb, stop):
+                            for i in range(blk * self.block, self.row_end(blk)):
+                                x[i] += system.precondition(i, self.r[i])

@@ -77,6 +77,7 @@ class Scene:
     view: tuple = (0.6, 0.45, 1.0)
     zoom: float = 1.0
     substeps_auto: dict | None = None  # how substeps="auto" chose the substeps (None: fixed by the scene)
+    integrator_choice: dict | None = None  # how integrator="auto" chose the method (choice.Choice.record)
 
     def __post_init__(self):
         check_substeps(self.substeps)
@@ -90,8 +91,7 @@ class Scene:
 
     def advance_frame(self) -> None:
         """Run one frame's substeps (raises DivergenceError on non-finite results)."""
-        for _ in range(self.substeps):
-            self.integrator.step(self.model, self.state, self.dt)
+        self.integrator.stepper_for(self.model).advance(self.state, self.dt, self.substeps)
 
     def cloth_mesh(self, snap: ParticleSnapshot | None = None):
         """The cloth surface now, or None without cloth: (vertices (V,3) [m], triangles (F,3) int into
@@ -175,6 +175,7 @@ class Scene:
             "substeps": self.substeps,
             "frame_dt": self.frame_dt,
             "substeps_auto": self.substeps_auto,
+            "integrator_choice": self.integrator_choice,
             "integrator": self.integrator.settings(),
             "model": self.model.settings,
             "options": self.options,

@@ -1,6 +1,7 @@
-"""Drape: a square cloth falls onto a ball resting on the floor and drapes over it (implicit Euler + PCG).
+"""Drape: a square cloth falls onto a ball resting on the floor and drapes over it.
 
-Mass-spring cloth (Provot 1995) stepped by linearised backward Euler (Baraff & Witkin 1998, eq. 6); the
+Mass-spring cloth (Provot 1995) stepped by the cheapest method stable at the frame's step
+(integrator="auto", integrators/choice.py: symplectic Euler here) or the one named; the
 ball and the floor are signed-distance colliders with Coulomb friction, which keep every vertex at least
 the cloth's thickness from their surfaces. Each frame exports the cloth as a PLY mesh with vertex
 normals."""
@@ -9,7 +10,7 @@ import numpy as np
 
 from .. import Builder
 from .base import Scene, frame_step
-from .cloth import FRAME_DT, cloth_integrator, material_for, substeps_for
+from .cloth import FRAME_DT, cloth_method, material_for, substeps_for
 
 
 def uv_sphere(center, radius: float, *, rings: int = 24, segments: int = 48):
@@ -36,7 +37,7 @@ def uv_sphere(center, radius: float, *, rings: int = 24, segments: int = 48):
 def build(
     *,
     seed: int = 0,
-    integrator: str = "implicit_euler",
+    integrator: str = "auto",
     bend_stiffness: float = 50.0,
     resolution: int = 64,
     size: float = 1.6,
@@ -71,8 +72,9 @@ def build(
     b.add_collider_plane(normal=(0.0, 1.0, 0.0), offset=0.0, restitution=0.0, friction=floor_friction)
     model = b.finalize(seed=seed)
     vertex_mass = material.density * (size / (n - 1)) ** 2
-    if substeps is None:
-        substeps = substeps_for(integrator, material, vertex_mass, size / (n - 1))
+    integ, substeps, choice = cloth_method(
+        integrator, model, substeps, lambda: substeps_for(integrator, material, vertex_mass, size / (n - 1))
+    )
     reach = half + 0.15
     lo, hi = (-reach, 0.0, -reach), (reach, 0.75 * height, reach)  # framed for the draped cloth
     floor = np.array([[-reach, 0.0, -reach], [reach, 0.0, -reach], [reach, 0.0, reach], [-reach, 0.0, reach]])
@@ -80,10 +82,11 @@ def build(
     ball = uv_sphere(center, 0.985 * ball_radius)
     return Scene(
         name="drape",
-        description="a cloth falling onto a ball on the floor (implicit Euler, PCG)",
+        description="a cloth falling onto a ball on the floor",
         model=model,
         state=model.state(),
-        integrator=cloth_integrator(integrator),
+        integrator=integ,
+        integrator_choice=choice,
         dt=frame_step(FRAME_DT, substeps),
         substeps=substeps,
         bounds=(lo, hi),

@@ -2,14 +2,20 @@
 
 Continuum cloth: a Saint Venant–Kirchhoff triangle membrane (Volino et al. 2009) and discrete-shells
 bending (Grinspun et al. 2003) on a grid mesh, pinned along the pole, blown by per-triangle flat-plate
-drag and lift against a gusting wind, stepped by linearised backward Euler with PCG (Baraff & Witkin
-1998). Each frame exports the flag as a PLY mesh with vertex normals."""
+drag and lift against a gusting wind. The default integrator="auto" picks the cheapest method stable at
+the frame's step (integrators/choice.py): here linearised backward Euler with PCG (Baraff & Witkin 1998),
+since the aerodynamic damping would hold symplectic Euler to thousands of substeps. Each frame exports
+the flag as a PLY mesh with vertex normals."""
 
 import numpy as np
 
-from .. import Builder, FabricMaterial, make_integrator
+from .. import Builder, FabricMaterial
 from ..cloth import explicit_step_limit
 from .base import Scene, frame_step
+from .cloth import cloth_method
+
+# The flag's PCG: a looser tolerance than the sheet demos' (its membrane solves are costlier).
+IMPLICIT_OPTIONS = {"linear_solver": "pcg", "tol": 1e-3, "max_iterations": 200}
 
 FRAME_DT = 1 / 60  # [s]
 SUBSTEPS = 4
@@ -30,7 +36,7 @@ def fabric(*, youngs_modulus: float = 2.0e3, bending_stiffness: float = 2.0e-4) 
 def build(
     *,
     seed: int = 0,
-    integrator: str = "implicit_euler",
+    integrator: str = "auto",
     resolution: int = 40,
     width: float = 1.5,
     height: float = 1.0,
@@ -63,22 +69,23 @@ def build(
         cloth, wind=wind, drag_coefficient=1.2, lift_coefficient=0.6, gust_amplitude=gust, gust_frequency=0.7
     )
     model = b.finalize(seed=seed)
-    if integrator == "implicit_euler":
-        integ = make_integrator(integrator, linear_solver="pcg", tol=1e-3, max_iterations=200)
-        rule = SUBSTEPS
-    else:  # explicit methods: half the membrane's damped stability limit
-        integ = make_integrator(integrator, check_every=20)
+
+    def rule() -> int:  # explicit methods: half the membrane's damped stability limit
+        if integrator == "implicit_euler":
+            return SUBSTEPS
         limit = explicit_step_limit(material, width / (nx - 1))
-        rule = max(SUBSTEPS, int(np.ceil(FRAME_DT / (0.5 * limit))))
-    substeps = rule if substeps is None else substeps
+        return max(SUBSTEPS, int(np.ceil(FRAME_DT / (0.5 * limit))))
+
+    integ, substeps, choice = cloth_method(integrator, model, substeps, rule, IMPLICIT_OPTIONS)
     pole = (np.array([[0.0, top - 1.6 * height, 0.0]]), np.array([[0.0, top + 0.1, 0.0]]))
     lo, hi = (-0.1, top - 1.3 * height, -0.4 * width), (1.05 * width, top + 0.1, 0.4 * width)
     return Scene(
         name="flag",
-        description="a flag on a pole in gusty wind (membrane + bending + aerodynamics, implicit Euler)",
+        description="a flag on a pole in gusty wind (membrane + bending + aerodynamics)",
         model=model,
         state=model.state(),
         integrator=integ,
+        integrator_choice=choice,
         dt=frame_step(FRAME_DT, substeps),
         substeps=substeps,
         bounds=(lo, hi),

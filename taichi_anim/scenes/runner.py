@@ -6,9 +6,10 @@ file written (size and SHA-256) and the run's health (solver, stability and dive
 divergence watch is read before each frame is exported, so with `check_every` > 1 no frame after a
 bad step is written.
 
-Timings: the first step runs alone (it includes JIT compilation, reported as compile_s = first step
-minus a steady step); step time is measured with `ti.sync()` before every clock read and kept apart
-from export and render time."""
+Timings: a frame's substeps run as one call (Stepper.advance, launched as Stepper.frame_mode says,
+recorded in run.json) timed with `ti.sync()` before every clock read; the first frame includes JIT
+compilation, reported as compile_s = first frame minus a steady (median) frame; ms_per_step is a steady
+frame over its substeps; export and render time are kept apart."""
 
 import time
 from pathlib import Path
@@ -46,7 +47,7 @@ def run_scene(
     stepper = scene.integrator.stepper_for(scene.model)
     settings = {**scene.settings(), "frames": frames, "export": export, **(extra_settings or {})}
     write_manifest(out, settings, {}, status="running", health=stepper.health.to_dict())
-    run = {"step_times": [], "first_step_s": None, "export_s": 0.0, "render_s": 0.0, "frames_done": 0}
+    run = {"frame_times": [], "first_frame_s": None, "export_s": 0.0, "render_s": 0.0, "frames_done": 0}
     files: list[dict] = []  # what the run published, in order (see recording_files)
     status, failure = "failed", None
     try:
@@ -85,21 +86,20 @@ def run_scene(
 
 
 def _simulate(scene, stepper, frames, out, export, progress, viewer, run, tqdm) -> None:
-    model, state, integ = scene.model, scene.state, scene.integrator
+    state = scene.state
     bar = tqdm(range(frames), desc=scene.name, unit="frame", disable=not progress, leave=False)
     try:
         with frame_numbering(frames):
             for frame in bar:
-                for _ in range(scene.substeps):
-                    ti.sync()
-                    t0 = time.perf_counter()
-                    integ.step(model, state, scene.dt)
-                    ti.sync()
-                    dt_wall = time.perf_counter() - t0
-                    if run["first_step_s"] is None:
-                        run["first_step_s"] = dt_wall
-                    else:
-                        run["step_times"].append(dt_wall)
+                ti.sync()
+                t0 = time.perf_counter()
+                scene.advance_frame()
+                ti.sync()
+                dt_wall = time.perf_counter() - t0
+                if run["first_frame_s"] is None:
+                    run["first_frame_s"] = dt_wall
+                else:
+                    run["frame_times"].append(dt_wall)
                 # The watch may be read only every check_every steps: read it now, so a frame after a
                 # diverged step is never written.
                 stepper.check(state, energy=True)
@@ -121,8 +121,9 @@ def _simulate(scene, stepper, frames, out, export, progress, viewer, run, tqdm) 
 
 def _summary(scene, stepper, out, frames, run, files, complete: bool) -> dict:
     model, state, integ = scene.model, scene.state, scene.integrator
-    step_times, first_step_s = run["step_times"], run["first_step_s"]
-    steady = float(np.median(step_times)) if step_times else float(first_step_s or 0.0)
+    frame_times, first_frame_s = run["frame_times"], run["first_frame_s"]
+    steady = float(np.median(frame_times)) if frame_times else float(first_frame_s or 0.0)
+    per_step = steady / scene.substeps
     png = [f["path"] for f in files if f["path"].endswith("_last.png")]
     summary = {
         "scene": scene.name,
@@ -130,10 +131,12 @@ def _summary(scene, stepper, out, frames, run, files, complete: bool) -> dict:
         "frames_done": run["frames_done"],
         "steps": state.step_count,
         "simulated_s": state.time,
-        "ms_per_step": steady * 1e3,
-        "ms_per_step_mean": float(np.mean(step_times)) * 1e3 if step_times else None,
-        "first_step_s": first_step_s,
-        "compile_s": max((first_step_s or 0.0) - steady, 0.0),
+        "ms_per_frame": steady * 1e3,
+        "ms_per_step": per_step * 1e3,
+        "ms_per_frame_mean": float(np.mean(frame_times)) * 1e3 if frame_times else None,
+        "first_frame_s": first_frame_s,
+        "compile_s": max((first_frame_s or 0.0) - steady, 0.0),
+        "frame_mode": stepper.frame_mode(),
         "export_s": run["export_s"],
         "render_s": run["render_s"],
         "files_written": len(files),
@@ -190,6 +193,7 @@ def summary_line(s: dict) -> str:
     alive = "" if alive is None else f"{alive} particles alive, "
     return (
         f"{s['scene']}{status}: {s['frames_done']} frames, {s['steps']} steps on {s['arch']}: {alive}"
-        f"{spheres}{health}{s['ms_per_step']:.3f} ms/step, compile {s['compile_s']:.2f} s, "
+        f"{spheres}{health}{s['ms_per_frame']:.2f} ms/frame ({s['ms_per_step']:.3f} ms/step, "
+        f"{s['frame_mode']['mode']}), compile {s['compile_s']:.2f} s, "
         f"export {s['export_s']:.2f} s ({s['files_written']} files), picture {s['png']}"
     )

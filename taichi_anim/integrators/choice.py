@@ -1,0 +1,142 @@
+"""integrator="auto": the cheapest method that is stable at a scene's frame step, chosen per model.
+
+Every candidate is costed in force evaluations per frame (one element pass and particle update, the
+cost of one symplectic Euler step):
+- an explicit method with s stages takes n = ceil(frame_dt / (AUTO_SAFETY x limit)) substeps, its
+  stability limit on the model's highest frequency omega (stability.py, the estimate the stability guard
+  makes; Lanczos on the linearised forces): s x n evaluations;
+- implicit Euler takes `implicit_substeps` steps (stable at any step; the demos take 4 per 1/60 s frame to
+  keep its numerical damping low), each an assembly (IMPLICIT_ASSEMBLY evaluations) and I conjugate-
+  gradient iterations (CG_ITERATION evaluations each). I is bounded by the CG error bound (Shewchuk 1994,
+  eq. 55: iterations <= sqrt(kappa) ln(2 / tol) / 2) with kappa ~ 1 + (h omega)^2 for M + h^2 K, times
+  CG_BOUND_SHARE, the share of the bound PCG used on the cloth demos, capped at max_iterations.
+The constants were measured by benchmarks/auto_choice.py on the cloth, drape and flag demos (per-step
+times and iterations, 2-core CPU); the same benchmark checks that the chosen method is the one measured
+fastest per frame. The estimate costs one Lanczos run (~0.1-1 s); the choice, its reason and every
+candidate's estimated cost go into the run's settings (`Choice.record`).
+"""
+
+import math
+from dataclasses import dataclass, field
+
+from .. import validate
+from ..errors import ParameterError
+from ..stability import AUTO_SAFETY, MAX_AUTO_SUBSTEPS, stability_limit, state_frequency
+
+CANDIDATES = ("symplectic_euler", "rk4", "implicit_euler")
+STAGES = {"symplectic_euler": 1, "explicit_euler": 1, "midpoint": 2, "rk4": 4}
+IMPLICIT_ASSEMBLY = 2.0  # evaluations: linearising the terms and assembling the right-hand side
+CG_ITERATION = 1.5  # evaluations: one matrix-free product and the vector updates
+CG_BOUND_SHARE = 0.5  # measured PCG iterations / the CG bound (0.2-0.5 on the cloth demos)
+
+
+@dataclass(frozen=True)
+class Choice:
+    """name and options of the chosen integrator, substeps per frame, and why (candidates: name ->
+    {"substeps", "evaluations_per_frame", "limit" [s] or None, "note"})."""
+
+    name: str
+    options: dict
+    substeps: int
+    reason: str
+    omega: float
+    candidates: dict = field(default_factory=dict)
+    estimate: object = field(default=None, repr=False, compare=False)  # stability.Frequency (reused)
+
+    def record(self) -> dict:
+        return {
+            "chosen": self.name,
+            "substeps": self.substeps,
+            "reason": self.reason,
+            "omega": self.omega,
+            "candidates": self.candidates,
+        }
+
+
+def implicit_iterations(h_omega: float, tol: float, max_iterations: int) -> float:
+    """Estimated PCG iterations of one implicit Euler solve at h omega (module docstring)."""
+    bound = 0.5 * math.sqrt(1.0 + h_omega * h_omega) * math.log(2.0 / tol)
+    return min(float(max_iterations), max(1.0, CG_BOUND_SHARE * bound))
+
+
+def choose_integrator(
+    model,
+    frame_dt: float,
+    *,
+    state=None,
+    candidates=CANDIDATES,
+    implicit_substeps: int = 1,
+    implicit_options: dict | None = None,
+    explicit_options: dict | None = None,
+) -> Choice:
+    """The cheapest of `candidates` stable at frame_dt [s] on `model` (at `state`, default the model's
+    start): see the module docstring. implicit_options: implicit Euler's options (tol, max_iterations,
+    linear solver; they enter its cost); explicit_options: the explicit methods' (e.g. check_every)."""
+    frame_dt = validate.positive("frame_dt", frame_dt)
+    implicit_substeps = validate.count("implicit_substeps", implicit_substeps, 1)
+    for name in candidates:
+        validate.choice("candidates", name, [*STAGES, "implicit_euler"])
+    implicit_options = dict(implicit_options or {})
+    est = state_frequency(model, model.state() if state is None else state)
+    costs = {}
+    for name in candidates:
+        if name == "implicit_euler":
+            h = frame_dt / implicit_substeps
+            tol = implicit_options.get("tol", 1e-4)
+            cap = implicit_options.get("max_iterations", 200)
+            iters = implicit_iterations(h * est.omega, tol, cap) if model.coupled else 0.0
+            per_step = IMPLICIT_ASSEMBLY + CG_ITERATION * iters
+            costs[name] = {
+                "substeps": implicit_substeps,
+                "evaluations_per_frame": implicit_substeps * per_step,
+                "limit": None,
+                "note": f"~{iters:.0f} PCG iterations per step (h omega {h * est.omega:.3g}, tol {tol:g})",
+            }
+            continue
+        limit = stability_limit(name, est.omega, est.zeta)
+        if limit is None or limit <= 0.0:
+            n = math.inf
+        elif math.isinf(limit):
+            n = 1
+        else:
+            n = max(1, math.ceil(frame_dt / (AUTO_SAFETY * limit) - 1e-9))
+        costs[name] = {
+            "substeps": n if math.isfinite(n) else None,
+            "evaluations_per_frame": STAGES[name] * n if n <= MAX_AUTO_SUBSTEPS else math.inf,
+            "limit": None if limit is None or math.isinf(limit) else limit,
+            "note": "no stable step" if not math.isfinite(n) else f"{n} substeps within the limit",
+        }
+    best = min(costs, key=lambda k: costs[k]["evaluations_per_frame"])
+    if math.isinf(costs[best]["evaluations_per_frame"]):
+        raise ParameterError(
+            f"integrator='auto': none of {list(candidates)} is stable at {frame_dt:.3g} s per frame within "
+            f"{MAX_AUTO_SUBSTEPS} substeps (highest frequency {est.omega:.4g} rad/s); add implicit_euler"
+        )
+    for c in costs.values():  # JSON has no infinity
+        if math.isinf(c["evaluations_per_frame"]):
+            c["evaluations_per_frame"] = None
+    ranked = sorted(
+        (k for k in costs if costs[k]["evaluations_per_frame"] is not None),
+        key=lambda k: costs[k]["evaluations_per_frame"],
+    )
+    runner_up = next((k for k in ranked if k != best), None)
+
+    def cost(k: str) -> str:
+        return f"{k} x{costs[k]['substeps']}: ~{costs[k]['evaluations_per_frame']:.0f}"
+
+    reason = f"{cost(best)} force evaluations per frame"
+    if runner_up is not None:
+        reason += f" against {cost(runner_up)}"
+    reason += f" (highest frequency {est.omega:.4g} rad/s)"
+    options = implicit_options if best == "implicit_euler" else dict(explicit_options or {})
+    return Choice(best, options, int(costs[best]["substeps"]), reason, est.omega, costs, est)
+
+
+def make_chosen(model, choice: Choice):
+    """The chosen integrator, bound to `model`, its stepper reusing the choice's frequency estimate (so
+    the stability guard does not repeat it)."""
+    from . import make_integrator  # here: the package imports this module
+
+    integ = make_integrator(choice.name, **choice.options)
+    integ.stepper_for(model).stability_estimate = choice.estimate
+    return integ
