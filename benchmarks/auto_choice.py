@@ -137,8 +137,8 @@ def report(rows, args, started: dict, elapsed: float) -> str:
             "",
             "Each cloth demo at its defaults; every candidate at the substeps the chooser gives it "
             "(explicit: smallest count within 0.8 x the stability limit; implicit Euler: the demos' 4 steps "
-            f"per frame and PCG), median of up to {FRAMES} frames after 2 warm-up frames, f32, CPU. Estimated cost: force "
-            "evaluations per frame from the cost model (taichi_anim/integrators/choice.py).",
+            f"per frame and PCG), median of up to {FRAMES} frames after 2 warm-up frames, f32, CPU. "
+            "Estimated cost: force evaluations per frame from the cost model (taichi_anim/integrators/choice.py).",
             "",
             f"**Verdict**: {verdict}.",
             "",
@@ -158,7 +158,8 @@ def report(rows, args, started: dict, elapsed: float) -> str:
             "",
             "Cost-model constants from these runs (an implicit step in explicit steps of the same scene; "
             "the CG iteration's cost after subtracting IMPLICIT_ASSEMBLY = "
-            f"{choice_module.IMPLICIT_ASSEMBLY}; the model uses CG_ITERATION = {choice_module.CG_ITERATION}):",
+            f"{choice_module.IMPLICIT_ASSEMBLY}; the model uses CG_ITERATION = "
+            f"{choice_module.CG_ITERATION}):",
             "",
             md_table(
                 ["scene", "implicit step / explicit step", "PCG iterations", "CG iteration / explicit step"],
