@@ -138,7 +138,8 @@ def report(rows, args, started: dict, elapsed: float) -> str:
             "Each cloth demo at its defaults; every candidate at the substeps the chooser gives it "
             "(explicit: smallest count within 0.8 x the stability limit; implicit Euler: the demos' 4 steps "
             f"per frame and PCG), median of up to {FRAMES} frames after 2 warm-up frames, f32, CPU. "
-            "Estimated cost: force evaluations per frame from the cost model (taichi_anim/integrators/choice.py).",
+            "Estimated cost: force evaluations per frame from the cost model "
+            "(taichi_anim/integrators/choice.py).",
             "",
             f"**Verdict**: {verdict}.",
             "",
