@@ -17,13 +17,16 @@ first (JIT or offline-cache load, reported apart) and twice more, then timed in 
 before every clock read; figures are medians over the batches. Every layout's positions are compared with
 the engine layout's after the same substeps, the persistent kernel's with the serialized kernel's.
 
-    .venv/bin/python benchmarks/layout.py          # full run (~2 min): benchmarks/results/layout.{md,json}
+    .venv/bin/python benchmarks/layout.py          # full run (~1 min): benchmarks/results/layout.{md,json}
     .venv/bin/python benchmarks/layout.py --quick  # smoke run into benchmarks/out/
+    .venv/bin/python benchmarks/layout.py --from-json benchmarks/results/layout.json  # page only, no timing
 """
 
+import argparse
 import json
 import statistics
 import time
+from pathlib import Path
 
 import numpy as np
 import taichi as ti
@@ -310,12 +313,12 @@ def measure(q: dict) -> dict:
     res = {"dram_copy_gbs": memory_bandwidth()["median"]}
     res["f32"] = sweep(q["sizes"], LAYOUTS, q["repeats"], "f32")
     sizes = {r["n"]: r["bytes"] for r in res["f32"]}  # a copy moving as many bytes as the f32 substep
-    res["copy_gbs"] = {n: memory_bandwidth(nbytes // 2, 30)["median"] for n, nbytes in sizes.items()}
+    res["copy_gbs"] = {str(n): memory_bandwidth(nbytes // 2, 30)["median"] for n, nbytes in sizes.items()}
     res["pool"] = pool_facts(q["loops"], q["repeats"])
     res["persistent"] = persistent(32, 4 * q["repeats"])
-    res["heavy"] = {2: heavy_times(q["repeats"], q["iters"])}
+    res["heavy"] = {"2": heavy_times(q["repeats"], q["iters"])}
     init("f32", cpu_threads=1)
-    res["heavy"][1] = heavy_times(q["repeats"], q["iters"])
+    res["heavy"]["1"] = heavy_times(q["repeats"], q["iters"])
     init("f64")
     res["f64"] = sweep(q["sizes"], [LAYOUTS[0], LAYOUTS[3]], q["repeats"], "f64")
     return res
@@ -367,7 +370,11 @@ def bytes_table(res) -> tuple[str, str]:
     for prec in ("f32", "f64"):
         rows = [r for r in res[prec] if (r["vertex"], r["springs"]) == LAYOUTS[0]]
         for r in rows:
-            gbs, copy, share = r["bytes"] / r["s"] / 1e9, res["copy_gbs"][r["n"]], fixed[r["serial"]] / r["s"]
+            gbs, copy, share = (
+                r["bytes"] / r["s"] / 1e9,
+                res["copy_gbs"][str(r["n"])],
+                fixed[r["serial"]] / r["s"],
+            )
             r["gbs"], r["bound"] = gbs, "bandwidth" if gbs > 0.5 * copy else "latency/compute"
             r["bound"] = "launch/thread pool" if share > 0.5 else r["bound"]
             out.append(
@@ -377,7 +384,7 @@ def bytes_table(res) -> tuple[str, str]:
         for n in sorted({r["n"] for r in rows}):
             r = min((r for r in rows if r["n"] == n), key=lambda r: r["s"])
             verdicts.append(
-                f"{n}² {prec}: {MODE[r['serial']]} faster, {r['gbs'] / res['copy_gbs'][n]:.2f} of a "
+                f"{n}² {prec}: {MODE[r['serial']]} faster, {r['gbs'] / res['copy_gbs'][str(n)]:.2f} of a "
                 f"same-size copy, {r['bound']}"
             )
     head = (
@@ -402,9 +409,9 @@ def pool_tables(res) -> tuple[str, str, str]:
     t2 = table(
         "64 heavy items|1 thread|2 threads|1 thread / 2 threads|busiest thread's share (2 threads)",
         [
-            f"{k}|{fmt_s(h[1][k]['s'])}|{fmt_s(h[2][k]['s'])}|{h[1][k]['s'] / h[2][k]['s']:.2f}|"
-            f"{h[2][k]['busiest_share']:.2f}"
-            for k in h[1]
+            f"{k}|{fmt_s(h['1'][k]['s'])}|{fmt_s(h['2'][k]['s'])}|{h['1'][k]['s'] / h['2'][k]['s']:.2f}|"
+            f"{h['2'][k]['busiest_share']:.2f}"
+            for k in h["1"]
         ],
     )
     t3 = table(
@@ -432,11 +439,11 @@ def conclusions(res) -> dict:
         if med[best] > 0.9
         else (f"{best[0]}/{best[1]} is faster by {1 / med[best]:.2f}× (median)")
     )
-    f64 = [pick(res["f64"], n, e, sr)["s"] / pick(rows, n, e, sr)["s"] for n in sizes for sr in (1, 0)]
+    f64 = {sr: [pick(res["f64"], n, e, sr)["s"] / pick(rows, n, e, sr)["s"] for n in sizes] for sr in (1, 0)}
     loops = {(r["n"], r["serial"]): r["per_loop_s"] * 1e6 for r in res["pool"]["loops"]}
     p, n0, h = res["persistent"]["cases"], min(n for n, _ in loops), res["heavy"]
     short = min(
-        h[2][k]["busiest_share"] for k in ("plain, block_dim=1", "block_dim=1, block_dim_adaptive=False")
+        h["2"][k]["busiest_share"] for k in ("plain, block_dim=1", "block_dim=1, block_dim_adaptive=False")
     )
     per, ser = (p[f"16 substeps in {k} kernel"]["s"] for k in ("a 2-worker spin-barrier", "one serialized"))
     return dict(
@@ -444,43 +451,76 @@ def conclusions(res) -> dict:
         + ", ".join(f"{a}/{b} {med[a, b]:.2f}× ({min(v):.2f}–{max(v):.2f})" for (a, b), v in ratio.items())
         + f"; {keep}.",
         speed=", ".join(f"{n}² {pick(rows, n, e, 1)['s'] / pick(rows, n, e, 0)['s']:.2f}×" for n in sizes),
-        fp=f"f64 takes {min(f64):.2f}–{max(f64):.2f}× the f32 time (engine layout, both modes) for 1.7× the "
-        "bytes: "
+        fp=f"f64 takes {min(f64[1]):.2f}–{max(f64[1]):.2f}× the f32 time with serialized loops and "
+        f"{min(f64[0]):.2f}–{max(f64[0]):.2f}× with parallel ones (engine layout) for 1.7× the bytes: "
         + (
             "float width hardly matters to this substep; f32 stays the default for its memory, and f64 is "
-            "nearly free where accuracy needs it"
-            if max(f64) < 1.3
+            "nearly free where accuracy needs it (the parallel ratios at small sizes move with the thread "
+            "pool's fixed cost, item 4)"
+            if max(f64[1]) < 1.3
             else "f32 buys real speed here"
         ),
         empty=res["pool"]["empty_launch_s"] * 1e6,
+        par_fixed=loops[n0, False] - loops[n0, True],
+        pays=", ".join(f"{n}²" for n in sizes if pick(rows, n, e, 1)["s"] > 1.05 * pick(rows, n, e, 0)["s"])
+        or "no size",
         loop=f"{loops[n0, False]:.0f} µs parallel against {loops[n0, True]:.1f} µs serialized at {n0} items",
-        plain=h[2]["plain, block_dim=1"]["busiest_share"],
-        unadaptive=h[2]["block_dim=1, block_dim_adaptive=False"]["busiest_share"],
+        cross=next(
+            (f"from {n} items on" for n, sr in sorted(loops) if not sr and loops[n, sr] < loops[n, True]),
+            f"at none of these sizes (up to {max(n for n, _ in loops)} items)",
+        ),
+        plain=h["2"]["plain, block_dim=1"]["busiest_share"],
+        unadaptive=h["2"]["block_dim=1, block_dim_adaptive=False"]["busiest_share"],
         neither="neither option spreads" if short > 0.9 else "an option spreads",
-        spread=h[1]["t % 512 spread"]["s"] / h[2]["t % 512 spread"]["s"],
+        spread=h["1"]["t % 512 spread"]["s"] / h["2"]["t % 512 spread"]["s"],
+        even=" (its items split evenly, yet 2 threads were no faster: the halves did not overlap, as when "
+        "another process holds the second core; see the CPU used by other processes)"
+        if h["2"]["t % 512 spread"]["busiest_share"] < 0.6
+        and h["1"]["t % 512 spread"]["s"] < 1.3 * h["2"]["t % 512 spread"]["s"]
+        else "",
+        best=f"best batches {p['16 substeps in a 2-worker spin-barrier kernel']['min_s']:.0f} against "
+        f"{p['16 substeps in one serialized kernel']['min_s']:.0f} µs",
         pers=f"{per:.0f} µs a substep against {ser:.0f} µs serialized ({'faster' if per < ser else 'slower'}",
         tail=p["16 substeps in a 2-worker spin-barrier kernel"]["max_s"] / per,
     )
 
 
-def main(argv=None) -> None:
-    args = parse_args(__doc__.splitlines()[0], argv)
-    _, folder = output_paths(args)
-    load_start, engine, other, t0 = load_average(), engine_fingerprint(), OtherLoad(), time.perf_counter()
-    r = measure(QUICK if args.quick else FULL)
-    cmd, wall = command_line(args, "layout.py"), (time.perf_counter() - t0) / 60
-    date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-    info = machine_table(
-        machine_info(), load_start=load_start, load_end=load_average(), date=date, engine=engine, other=other
-    )
+def render(data: dict) -> str:
+    """The page, from a run's JSON (what `measure` returned plus the run's settings and machine table)."""
+    r = data
     t_layout, t_fp, (t_bytes, verdicts) = layout_table(r["f32"]), fp_table(r), bytes_table(r)
-    c = conclusions(r)
     t_loops, t_heavy, t_pers = pool_tables(r)
+    c, h, cap = conclusions(r), r["settings"]["h"], r["settings"]["spin_cap"]
+    return TEMPLATE.format(**r["run"], **locals())  # the template names these locals
+
+
+def main(argv=None) -> None:
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument(
+        "--from-json", type=Path, help="re-render the page from a run's layout.json, measuring nothing"
+    )
+    known, rest = pre.parse_known_args(argv)
+    args = parse_args(__doc__.splitlines()[0] + " Also: --from-json PATH.", rest)
+    _, folder = output_paths(args)
+    if known.from_json:
+        data = json.loads(known.from_json.read_text())
+    else:
+        load_start, engine, other, t0 = load_average(), engine_fingerprint(), OtherLoad(), time.perf_counter()
+        res = measure(QUICK if args.quick else FULL)
+        date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+        info = machine_table(
+            machine_info(),
+            load_start=load_start,
+            load_end=load_average(),
+            date=date,
+            engine=engine,
+            other=other,
+        )
+        run = dict(cmd=command_line(args, "layout.py"), wall=(time.perf_counter() - t0) / 60, info=info)
+        data = json.loads(json.dumps({"settings": {"h": H, "spin_cap": CAP}, "run": run, **res}))
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / "layout.md").write_text(
-        TEMPLATE.format(**locals(), h=H, cap=CAP)
-    )  # the template names these locals
-    (folder / "layout.json").write_text(json.dumps({"settings": {"h": H, "spin_cap": CAP}, **r}, indent=1))
+    (folder / "layout.json").write_text(json.dumps(data, indent=1))
+    (folder / "layout.md").write_text(render(data))
     log(f"wrote {folder / 'layout.md'}")
 
 
@@ -536,6 +576,11 @@ pool, else GB/s > 0.5 × same-size copy -> bandwidth, else latency/compute (gath
 
 {t_loops}
 
+**Conclusion.** A parallel loop costs a fixed {c[par_fixed]:.0f} µs or so here (the thread pool wakes
+its workers for every loop), so a loop pays to run in parallel only when its serialized time is several
+times that: for `a[i] += 1` parallel beats serialized {c[cross]}; the cloth substep's two parallel loops
+are more than 5% faster than serialized ones at {c[pays]} (item 1). Serialize small loops and fuse substeps.
+
 (ii) Taichi's CPU range-for is cut into tasks of min(1024, max(512, n / (threads × 32))) items, so a loop
 of < 1024 items is one task on one thread. 64 heavy items (a dependent chain of `sin`) on 1 and on 2
 threads; "busiest thread's share": the fraction of the items the busiest of the 2 threads ran
@@ -545,10 +590,11 @@ iterations (`if t % 512 == 0`).
 
 {t_heavy}
 
-**Conclusion.** The busiest thread ran {c[plain]:.2f} of the items of the plain loop and {c[unadaptive]:.2f}
-with the adaptive size switched off: {c[neither]} a short loop in taichi 1.7.4. Spread over
-64 × 512 iterations the loop ran {c[spread]:.2f}× faster on 2 threads than on 1. Any engine loop under
-1024 items (a small model's particle loop, per-block loops) uses one core whatever it asks for.
+**Conclusion.** The busiest thread ran {c[plain]:.2f} of the items of the plain loop and
+{c[unadaptive]:.2f} with the adaptive size switched off: {c[neither]} a short loop in taichi 1.7.4.
+Spread over 64 × 512 iterations the loop ran {c[spread]:.2f}× faster on 2 threads than on 1{c[even]}.
+Any engine loop under 1024 items (a small model's particle loop, per-block loops) uses one core whatever
+it asks for.
 
 (iii) 32² cloth: a persistent kernel of two workers (a 1024-item loop, `if t % 512 == 0`), each owning half
 the springs and half the particles, two spin barriers per substep (atomic_add, then spin on
@@ -560,9 +606,10 @@ stalls.
 
 {t_pers}
 
-**Conclusion.** The spin-barrier kernel takes {c[pers]}); its slowest batch took {c[tail]:.1f}× its median.
-A spin barrier needs both threads on a core at once: when another process holds the other core, every
-barrier waits for a time slice of the scheduler (milliseconds), so it is a bet on an idle machine.
+**Conclusion.** The spin-barrier kernel takes {c[pers]}); {c[best]}; its slowest batch took
+{c[tail]:.1f}× its median. A spin barrier needs both threads on a core at once: when another process
+holds the other core, every barrier waits for a time slice of the scheduler (milliseconds), so it is a
+bet on an idle machine.
 """
 
 
