@@ -108,11 +108,13 @@ class Model:
         self.self_contact = None if self_contact is None else MappingProxyType(dict(self_contact))
         if self_contact is not None:
             self.settings["self_contact"] = dict(self_contact)
-        # Small scenes are launch-bound on the CPU: their particle loops run serially (compile-time).
-        # A particle's work grows with its springs, which count towards the size.
-        work = n + sum(t.entry_count for t in self.element_terms)
-        self.work = work  # the size that decides serial loops and fused frames (Stepper.frame_mode)
-        self.serial = serial_loops(work)
+        # Small scenes are launch-bound on the CPU: their loops run serially (compile-time). A particle's
+        # work grows with its element entries (2 per spring), each about an eighth of a particle's update
+        # with colliders: parallel loops pay from ~2e4 particles (benchmarks/particles.py) and from ~128^2
+        # mass-spring cloth (benchmarks/layout.py: 0.59x at 64^2, 1.01x at 128^2, 1.38x at 256^2).
+        entries = sum(t.entry_count for t in self.element_terms)
+        self.work = n + entries  # the size that decides fused frames (Stepper.frame_mode)
+        self.serial = serial_loops(n + entries // 8)
 
     def state(self) -> State:
         """A fresh State at t = 0: the builder's particles in place, every emitter slot dead."""

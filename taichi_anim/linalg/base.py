@@ -2,8 +2,8 @@
 tasks.
 
 Each solver iteration is a few loops over blocks of rows (serial on small CPU systems), and nothing
-else: a block writes its partial dot products into a slot, and the next loop's blocks each add up those partials themselves, in
-the same fixed order, so every block derives the same scalars (alpha, beta, the stopping test) without a
+else: a block writes its partial dot products into a slot, and the next loop's blocks each add up those
+partials themselves, in the same fixed order, so every block derives the same scalars (alpha, beta, the stopping test) without a
 serial task in between (each costs a kernel launch, tens of microseconds on the CPU). On the CPU the
 order of the sums never depends on the thread count, so a solve gives the same bits with 1 or 2 threads.
 On GPUs a block is one row and the partials are added with atomics (fast, not bitwise reproducible);
@@ -122,7 +122,7 @@ class LinearSolver:
 
     def _record(self, floor: float) -> LinearSolveResult:
         it = int(self.status[1])
-        rr, bb = (float(v) for v in self.final.to_numpy())
+        rr, bb = float(self.final[0]), float(self.final[1])  # two scalar reads: no parallel copy kernel
         res = math.sqrt(max(rr, 0.0) / bb) if bb > 0 else 0.0
         self.last = LinearSolveResult(it, res, res <= self.tol or rr <= floor, math.sqrt(max(bb, 0.0)))
         self.total_iterations += it

@@ -42,12 +42,17 @@ def spring_stiffness_apply(n, axial, transverse, p):
 class SpringCache:
     """A solver's scratch for the springs: force on each spring's first end (S,) [N]; with implicit
     solves its direction n (S,), the two stiffnesses (axial, transverse) of
-    S_s = -(h df/dv + h^2 df/dx) = axial n n^T + transverse (I - n n^T) (S,2) [kg], and df/dx (v_i - v_j)."""
+    S_s = -(h df/dv + h^2 df/dx) = axial n n^T + transverse (I - n n^T) (S,2) [kg], and df/dx (v_i - v_j);
+    `entry` holds (n, axial, transverse) per adjacency entry (2S,)."""
 
     def __init__(self, count: int, implicit: bool):
         self.f = ti.Vector.field(3, float, count)
         self.n = ti.Vector.field(3, float, count) if implicit else None
         self.ab = ti.Vector.field(2, float, count) if implicit else None
+        # (n, axial, transverse) again per adjacency entry (2S,), in the order the matrix-vector product
+        # reads them: its loop then streams one array instead of chasing each entry's spring index
+        # (the product runs ~40 times per implicit step, the copy once; benchmarks/cloth_implicit.py).
+        self.entry = ti.Vector.field(5, float, 2 * count) if implicit else None
         self.kxv = ti.Vector.field(3, float, count) if implicit else None
 
 
@@ -94,6 +99,14 @@ class Springs:
         self.adj_start.from_numpy(start)
         self.adj_spring.from_numpy(signed[order].astype(np.int32))
         self.adj_other.from_numpy(other[order].astype(np.int32))
+        # Where each spring sits in the adjacency: (entry at its first end, entry at its second end).
+        where = np.empty((s, 2), dtype=np.int32)
+        sorted_signed = signed[order]
+        first = sorted_signed > 0
+        where[sorted_signed[first] - 1, 0] = np.flatnonzero(first)
+        where[-sorted_signed[~first] - 1, 1] = np.flatnonzero(~first)
+        self.spring_entry = ti.Vector.field(2, ti.i32, s)
+        self.spring_entry.from_numpy(where)
         self.spring_pair = ti.Vector.field(2, ti.i32, s)
         self.spring_param = ti.Vector.field(3, float, s)  # rest length, stiffness, damping
         self.spring_pair.from_numpy(pairs.astype(np.int32))
@@ -155,8 +168,13 @@ class Springs:
             tr = ti.max(1.0 - p[0] / ti.max(length, _EPS), 0.0)
             cache.f[s] = f
             cache.n[s] = n
-            cache.ab[s] = ti.Vector([h * p[2] + h * h * p[1], h * h * p[1] * tr])
+            ab = ti.Vector([h * p[2] + h * h * p[1], h * h * p[1] * tr])
+            cache.ab[s] = ab
             cache.kxv[s] = -spring_stiffness_apply(n, p[1], p[1] * tr, dv)
+            packed = ti.Vector([n[0], n[1], n[2], ab[0], ab[1]])
+            e = self.spring_entry[s]
+            cache.entry[e[0]] = packed
+            cache.entry[e[1]] = packed
 
     @ti.func
     def gather_linear(self, cache: ti.template(), i):
@@ -186,7 +204,7 @@ class Springs:
         pi = pf[i]
         acc = ti.Vector.zero(float, 3)
         for e in range(self.adj_start[i], self.adj_start[i + 1]):
-            s = ti.abs(self.adj_spring[e]) - 1
-            ab = cache.ab[s]
-            acc += spring_stiffness_apply(cache.n[s], ab[0], ab[1], pi - pf[self.adj_other[e]])
+            d = cache.entry[e]
+            n = ti.Vector([d[0], d[1], d[2]])
+            acc += spring_stiffness_apply(n, d[3], d[4], pi - pf[self.adj_other[e]])
         return acc
