@@ -3,8 +3,9 @@ tasks.
 
 Each solver iteration is a few loops over blocks of rows (serial on small CPU systems), and nothing
 else: a block writes its partial dot products into a slot, and the next loop's blocks each add up those
-partials themselves, in the same fixed order, so every block derives the same scalars (alpha, beta, the stopping test) without a
-serial task in between (each costs a kernel launch, tens of microseconds on the CPU). On the CPU the
+partials themselves, in the same fixed order, so every block derives the same scalars (alpha, beta, the
+stopping test) without a serial task in between (each costs a kernel launch, tens of microseconds on the
+CPU). On the CPU the
 order of the sums never depends on the thread count, so a solve gives the same bits with 1 or 2 threads.
 On GPUs a block is one row and the partials are added with atomics (fast, not bitwise reproducible);
 thread 0 clears a slot one loop before it is reused.
