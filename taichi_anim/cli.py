@@ -14,6 +14,8 @@ from . import rng, runtime, validate
 from .errors import ConvergenceError, DivergenceError, OutputError, ParameterError, StabilityError
 from .integrators import INTEGRATORS
 
+AUTO_SCENES = ("cloth", "drape", "flag")  # demos that choose their method with integrator="auto"
+
 EXIT_PARAMETER = 2
 EXIT_OUTPUT = 3
 EXIT_SIMULATION = 4
@@ -41,7 +43,13 @@ def _parser() -> argparse.ArgumentParser:
     )
     d.add_argument("--arch", choices=runtime.ARCHS, default="cpu", help="Taichi backend (default cpu)")
     d.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    d.add_argument("--integrator", choices=sorted(INTEGRATORS), default=None, help="override the integrator")
+    d.add_argument(
+        "--integrator",
+        choices=sorted([*INTEGRATORS, "auto"]),
+        default=None,
+        help="override the integrator ('auto', the cloth, drape and flag demos' default: the cheapest method "
+        "stable at the frame's step)",
+    )
     d.add_argument(
         "--material",
         choices=["springs", "membrane"],
@@ -102,6 +110,12 @@ def _demo(args) -> int:
         print(f"taichi-anim: {w.message}", file=sys.stderr)
     options = {"seed": args.seed}
     if args.integrator:
+        if args.integrator == "auto" and args.name not in AUTO_SCENES:
+            print(
+                f"taichi-anim: --integrator auto applies to the {', '.join(AUTO_SCENES)} demos",
+                file=sys.stderr,
+            )
+            return 2
         options["integrator"] = args.integrator
     if args.material:
         if args.name not in ("cloth", "drape"):

@@ -137,6 +137,9 @@ def _summary(scene, stepper, out, frames, run, files, complete: bool) -> dict:
         "first_frame_s": first_frame_s,
         "compile_s": max((first_frame_s or 0.0) - steady, 0.0),
         "frame_mode": stepper.frame_mode(),
+        "integrator": integ.name,
+        "substeps": scene.substeps,
+        "integrator_auto": scene.integrator_choice is not None,
         "export_s": run["export_s"],
         "render_s": run["render_s"],
         "files_written": len(files),
@@ -191,8 +194,12 @@ def summary_line(s: dict) -> str:
     status = "" if s.get("status", "complete") == "complete" else f" ({s['status']})"
     alive = s.get("particles_alive")
     alive = "" if alive is None else f"{alive} particles alive, "
+    method = f"{s['integrator']} x{s['substeps']}/frame" + (
+        " (auto: cheapest stable)" if s["integrator_auto"] else ""
+    )
     return (
-        f"{s['scene']}{status}: {s['frames_done']} frames, {s['steps']} steps on {s['arch']}: {alive}"
+        f"{s['scene']}{status}: {s['frames_done']} frames, {s['steps']} steps on {s['arch']} ({method}): "
+        f"{alive}"
         f"{spheres}{health}{s['ms_per_frame']:.2f} ms/frame ({s['ms_per_step']:.3f} ms/step, "
         f"{s['frame_mode']['mode']}), compile {s['compile_s']:.2f} s, "
         f"export {s['export_s']:.2f} s ({s['files_written']} files), picture {s['png']}"
