@@ -35,7 +35,7 @@ and the first failing size (the bracket narrows to 2^(1/8), 9 %). If the start s
 halves down to start / 16 first. Reported per workload: the largest passing size, its ms/frame, the
 nearest failing size above it and its ms/frame, cores busy and compile time at the size found.
 
-    .venv/bin/python benchmarks/realtime.py          # full run (~4 min): benchmarks/results/
+    .venv/bin/python benchmarks/realtime.py          # full run (~2-3 min): benchmarks/results/
                                                      # realtime.{md,json,png} and the "realtime" section
                                                      # of benchmarks/RESULTS.md
     .venv/bin/python benchmarks/realtime.py --quick  # smoke (~1 min, small caps): benchmarks/out/
@@ -398,6 +398,7 @@ def plot(results: list[dict], path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter, NullFormatter
 
     fig, axes = plt.subplots(1, len(WORKLOADS), figsize=(4.0 * len(WORKLOADS), 3.8))
     for ax, w, res in zip(axes, WORKLOADS, results, strict=True):
@@ -409,6 +410,8 @@ def plot(results: list[dict], path) -> None:
             ax.axhline(HZ60 * 1e3, color="orange", ls=":", lw=1, label="60 fps 16.7 ms")
         ax.set_xscale("log")
         ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.yaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel("vertices" if w.key.startswith("cloth") else "particles / spheres")
         ax.set_ylabel("median ms per frame")
         ax.set_title(w.title, fontsize=9)
