@@ -320,8 +320,12 @@ def sensitivity(model, state, integs, x0, v0, rows, scene, n) -> dict | None:
     rng = np.random.default_rng(0)
     w = width(scene, n)
     reset(state, (x0 + SENS_DELTA * w * rng.uniform(-1.0, 1.0, x0.shape)).astype(x0.dtype), v0, integ)
-    for _ in range(STEPS):
-        integ.step(model, state, DT)
+    try:
+        for _ in range(STEPS):
+            integ.step(model, state, DT)
+    except ta.DivergenceError as err:  # the perturbed run diverged: no floor to report (said in the log)
+        log(f"{scene} {n}² sensitivity run diverged: {err}")
+        return None
     state.check_finite()
     e = errors(state.particle_x.to_numpy(), base["x"], w)
     log(f"{scene} {n}² sensitivity ({SENS_LABEL}, start moved by {SENS_DELTA:g} x width): max "

@@ -8,10 +8,11 @@ and bend springs (cloth_implicit.warp_springs), k = 1000 N/m, damping 10 kg/s; g
 - "steps": 16 calls of Stepper.step (the per-step Python work: validation, guard, watchdog, counters);
 - "launches": the method's fused kernel launched once per substep, nothing else in between;
 - "serial_frame": one kernel runs the 16 substeps, every loop serial (one launch per frame).
-Each mode: its own model and state, 3 warm-up frames (the first holds the JIT compile), then FRAMES
-frames timed one by one (`ti.sync()` before each clock read; each frame ends with the positions copied to
-NumPy, as Warp's benchmark does), median ms per frame; modes alternate in ROUNDS rounds and the median of
-the rounds' medians is reported, with the process's cores busy. Also checked: every mode's positions
+Each mode: its own model and state (a fresh Taichi runtime per size), 3 warm-up frames (the first holds
+the JIT compile), then FRAMES frames timed one by one (`ti.sync()` before each clock read; each frame
+ends with the positions copied to NumPy, as Warp's benchmark does), median ms per frame; modes alternate
+in ROUNDS rounds (each continuing its own run) and the median of the rounds' medians is reported, with
+the process's cores busy. Also checked: every mode's positions
 after the same frames are bitwise equal to "steps".
 
     .venv/bin/python benchmarks/frame_fusion.py           # benchmarks/results/frame_fusion.{md,json}
@@ -67,18 +68,25 @@ def build(n: int):
     return model, model.state(), integ
 
 
-def frame_times(n: int, mode: str, frames: int) -> tuple[list[float], float, np.ndarray, float]:
-    """(ms per timed frame, first frame [s], final positions, cores busy) for one mode."""
+def make_run(n: int, mode: str):
+    """A model, state and stepper forced to `mode`, and its first frame [s] (compile included) plus two
+    warm-up frames."""
     model, state, integ = build(n)
     st = integ.stepper_for(model)
     st._frame_mode = {"mode": mode, "reason": "benchmark"}
-    h = FRAME_DT / SUBSTEPS
     t0 = clock()
-    st.advance(state, h, SUBSTEPS)
+    st.advance(state, FRAME_DT / SUBSTEPS, SUBSTEPS)
     state.particle_x.to_numpy()
     first = clock() - t0
     for _ in range(2):
-        st.advance(state, h, SUBSTEPS)
+        st.advance(state, FRAME_DT / SUBSTEPS, SUBSTEPS)
+    return st, state, first
+
+
+def frame_times(run, frames: int) -> tuple[list[float], np.ndarray, float]:
+    """(ms per timed frame, final positions, cores busy) of `frames` more frames of one run."""
+    st, state, _ = run
+    h = FRAME_DT / SUBSTEPS
     out = []
     c0 = sum(os.times()[:2])
     w0 = clock()
@@ -88,24 +96,27 @@ def frame_times(n: int, mode: str, frames: int) -> tuple[list[float], float, np.
         state.particle_x.to_numpy()
         out.append((clock() - a) * 1e3)
     busy = (sum(os.times()[:2]) - c0) / (clock() - w0)
-    return out, first, state.particle_x.to_numpy(), busy
+    return out, state.particle_x.to_numpy(), busy
 
 
 def measure(sizes, frames: int, rounds: int) -> list[dict]:
     rows = []
     for n in sizes:
+        # A fresh runtime per size: Taichi holds a bounded number of field trees (many models crash it).
+        ta.init("cpu", log_level=ti.ERROR)
         model, _, _ = build(n)
         row = {"n": n, "work": model.work, "modes": {}}
         chosen = ta.make_integrator("symplectic_euler").stepper_for(model).frame_mode()
         row["chosen"] = chosen
         finals = {}
         per_mode = {m: {"medians": [], "busy": []} for m in MODES}
+        runs = {m: make_run(n, m) for m in MODES}  # every mode runs the same frames: bitwise comparable
         for _ in range(rounds):
             for mode in MODES:
-                times, first, x, busy = frame_times(n, mode, frames)
+                times, x, busy = frame_times(runs[mode], frames)
                 per_mode[mode]["medians"].append(statistics.median(times))
                 per_mode[mode]["busy"].append(busy)
-                per_mode[mode]["first_s"] = first
+                per_mode[mode]["first_s"] = runs[mode][2]
                 finals[mode] = x
         for mode in MODES:
             d = per_mode[mode]

@@ -33,7 +33,7 @@ import warnings
 import taichi as ti
 
 from .. import validate
-from ..runtime import data_oriented
+from ..runtime import data_oriented, serial_loops
 from .neighbors import make_neighbor_search
 from .response import project_spheres
 
@@ -161,6 +161,9 @@ class ContactSpheres:
         self.max_substeps = validate.count("max_substeps", max_substeps, 1)
         self._warned = False
         n = model.particle_count
+        # Small sphere counts are launch-bound on the CPU: a step is ~8 loops, each ~70 us more in
+        # parallel than serial here (benchmarks/realtime.py found 463 us per step at 62 spheres).
+        self._serial = serial_loops(n)
         self.max_radius = model.max_radius
         self.min_radius = model.min_sphere_radius  # points (radius 0) may share the scene
         # A pair touches when |x_i - x_j| < r_i + r_j <= 2 r_max: cells of that size hold every contact.
@@ -330,9 +333,11 @@ class ContactSpheres:
             if ti.static(self._per_slot):
                 # A pass of its own (top-level loops run one after the other): the pass below reads the
                 # neighbours' radii and masses, which must be this build's, not the last one's.
+                ti.loop_config(serialize=self._serial)
                 for k in range(ns.size[None]):
                     self._gather(model, state, k)
             # Every sphere's contacts in the prediction, before any sweep reads a neighbour's count.
+            ti.loop_config(serialize=self._serial)
             for k in range(ns.size[None]):
                 if ti.static(not self._per_slot):
                     self._gather(model, state, k)  # only v*, which no count reads: fused, one pass less
@@ -341,6 +346,7 @@ class ContactSpheres:
                 )
                 ns.for_each_candidate(k, acc.x, self._visit_count, acc)
                 self.slot_contact_count[k] = acc.n
+        ti.loop_config(serialize=self._serial)
         for k in range(ns.size[None]):
             acc = self._position_acc(
                 x=sweep.src.x[k],
@@ -366,6 +372,7 @@ class ContactSpheres:
     def _velocities(self, state: ti.template(), side: ti.template(), inv_h: float, step: ti.i32):
         ns = self.neighbors
         # Each sphere's count of approaching contacts, before any sphere reads a neighbour's.
+        ti.loop_config(serialize=self._serial)
         for k in range(ns.size[None]):
             acc = self._velocity_acc(
                 x=self.x_pred[k],
@@ -381,6 +388,7 @@ class ContactSpheres:
             )
             self._listed(k, self._visit_approach_count, acc, acc.xp)
             self.slot_approach_count[k] = acc.n
+        ti.loop_config(serialize=self._serial)
         for k in range(ns.size[None]):
             x = side.x[k]
             acc = self._velocity_acc(
@@ -408,6 +416,7 @@ class ContactSpheres:
     @ti.kernel
     def _max_speed(self, model: ti.template(), state: ti.template(), t: float):
         self.max_speed[None] = 0.0
+        ti.loop_config(serialize=self._serial)
         for i in range(model.particle_count):
             if model.alive(state, i, t):
                 ti.atomic_max(self.max_speed[None], state.particle_v[i].norm())
@@ -435,8 +444,10 @@ class ContactSpheres:
     def _overlaps(self, model: ti.template(), state: ti.template()):
         self.overlap[None] = 0.0
         self.contact_count[None] = 0
+        ti.loop_config(serialize=self._serial)
         for k in range(self.neighbors.size[None]):
             self._gather(model, state, k)
+        ti.loop_config(serialize=self._serial)
         for k in range(self.neighbors.size[None]):
             p = self._position_acc(
                 x=self.x_pred[k], r=self.slot_radius(k), w=0.0, dx=ti.Vector.zero(float, 3), n=0, c=0
