@@ -12,7 +12,7 @@ import pytest
 
 import taichi_anim as ta
 from taichi_anim import DivergenceError, ParameterError
-from taichi_anim.integrators.choice import choose_integrator, implicit_iterations
+from taichi_anim.integrators.choice import choose_integrator, implicit_iterations, make_chosen
 from taichi_anim.scenes import make_scene
 from taichi_anim.scenes.runner import run_scene
 from taichi_anim.stability import AUTO_SAFETY
@@ -201,3 +201,31 @@ def test_large_solves_and_frames_give_the_same_bits_on_1_and_2_threads():
     one, two = ([ln for ln in o.splitlines() if not ln.startswith("[Taichi]")] for o in outs)
     assert len(one) == 2 and one == two
     assert one[1].split()[1] == "launches"  # 96^2 is above the fused-frame size
+
+
+def test_auto_choice_with_an_error_tolerance_meets_it_on_the_closed_form():
+    """error_tolerance [m]: the chosen method's one-frame position error (step doubling, Richardson) is
+    within it; checked against the closed form x(t) = L + A cos(omega t) of the undamped oscillator. A
+    loose tolerance keeps the stability-only choice; a tight one raises the substeps beyond it."""
+    k, m, frame_dt = 1e4, 0.5, 1 / 60
+    omega = math.sqrt(k / m)
+    exact = 1.0 + 0.1 * math.cos(omega * frame_dt)
+    loose = choose_integrator(_oscillator(k, 0.0, m), frame_dt, candidates=("symplectic_euler", "rk4"))
+    for tol in (0.2, 1e-5):  # 0.2 m: twice the amplitude, met by any stable step
+        model = _oscillator(k, 0.0, m)
+        choice = choose_integrator(
+            model, frame_dt, candidates=("symplectic_euler", "rk4"), error_tolerance=tol
+        )
+        record = choice.candidates[choice.name]["tolerance"]
+        assert record["met"] and record["estimated_error"] <= tol
+        state = model.state()
+        integ = make_chosen(model, choice)
+        integ.step(model, state, frame_dt, choice.substeps)
+        error = abs(state.particle_x.to_numpy()[1, 0] - exact)
+        assert error <= 2.0 * tol  # Richardson's estimate is asymptotically exact: a factor 2 of slack
+        if tol == 0.2:
+            assert (choice.name, choice.substeps) == (loose.name, loose.substeps)
+        else:
+            assert choice.substeps > loose.candidates[choice.name]["substeps"]
+    with pytest.raises(ParameterError, match="error_tolerance"):
+        choose_integrator(_oscillator(k, 0.0, m), frame_dt, error_tolerance=-1.0)

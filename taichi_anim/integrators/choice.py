@@ -14,20 +14,30 @@ The constants were measured by benchmarks/auto_choice.py on the cloth, drape and
 times and iterations, 2-core CPU); the same benchmark checks that the chosen method is the one measured
 fastest per frame. The estimate costs one Lanczos run (~0.1-1 s); the choice, its reason and every
 candidate's estimated cost go into the run's settings (`Choice.record`).
+
+With an error_tolerance [m] the choice is also held to accuracy: each candidate, cheapest first, runs
+one frame from the state at n and at 2n substeps (scratch states), and Richardson's estimate of the
+n-substep frame's position error, max_i |x_n - x_2n| 2^p / (2^p - 1) for a method of order p (Hairer,
+Norsett & Wanner, "Solving ODEs I", sec. II.4), must be within the tolerance; otherwise n doubles (up to
+MAX_DOUBLINGS times). The cheapest candidate that meets it wins. This measures the scene itself (no
+fitted error model), at the price of compiling and running every candidate for a few frames.
 """
 
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from .. import validate
-from ..errors import ParameterError
+from ..errors import DivergenceError, ParameterError
 from ..stability import AUTO_SAFETY, MAX_AUTO_SUBSTEPS, stability_limit, state_frequency
 
 CANDIDATES = ("symplectic_euler", "rk4", "implicit_euler")
 STAGES = {"symplectic_euler": 1, "explicit_euler": 1, "midpoint": 2, "rk4": 4}
 IMPLICIT_ASSEMBLY = 2.0  # evaluations: linearising the terms and assembling the right-hand side
-CG_ITERATION = 1.5  # evaluations: one matrix-free product and the vector updates
-CG_BOUND_SHARE = 0.5  # measured PCG iterations / the CG bound (0.2-0.5 on the cloth demos)
+CG_ITERATION = 0.8  # evaluations: one matrix-free product and the vector updates (0.75-0.84 measured)
+CG_BOUND_SHARE = 0.5  # measured PCG iterations / the CG bound (0.45-1.0 on the cloth demos)
+MAX_DOUBLINGS = 6  # error_tolerance: substeps doubled at most this often beyond the stable count
 
 
 @dataclass(frozen=True)
@@ -42,6 +52,7 @@ class Choice:
     omega: float
     candidates: dict = field(default_factory=dict)
     estimate: object = field(default=None, repr=False, compare=False)  # stability.Frequency (reused)
+    integrator: object = field(default=None, repr=False, compare=False)  # made while testing accuracy
 
     def record(self) -> dict:
         return {
@@ -68,16 +79,19 @@ def choose_integrator(
     implicit_substeps: int = 1,
     implicit_options: dict | None = None,
     explicit_options: dict | None = None,
+    error_tolerance: float | None = None,
 ) -> Choice:
     """The cheapest of `candidates` stable at frame_dt [s] on `model` (at `state`, default the model's
     start): see the module docstring. implicit_options: implicit Euler's options (tol, max_iterations,
-    linear solver; they enter its cost); explicit_options: the explicit methods' (e.g. check_every)."""
+    linear solver; they enter its cost); explicit_options: the explicit methods' (e.g. check_every);
+    error_tolerance [m]: also hold the estimated position error of one frame within it (module docstring)."""
     frame_dt = validate.positive("frame_dt", frame_dt)
     implicit_substeps = validate.count("implicit_substeps", implicit_substeps, 1)
     for name in candidates:
         validate.choice("candidates", name, [*STAGES, "implicit_euler"])
     implicit_options = dict(implicit_options or {})
-    est = state_frequency(model, model.state() if state is None else state)
+    start = model.state() if state is None else state
+    est = state_frequency(model, start)
     costs = {}
     for name in candidates:
         if name == "implicit_euler":
@@ -119,6 +133,19 @@ def choose_integrator(
         (k for k in costs if costs[k]["evaluations_per_frame"] is not None),
         key=lambda k: costs[k]["evaluations_per_frame"],
     )
+    options_for = {
+        k: (implicit_options if k == "implicit_euler" else dict(explicit_options or {})) for k in costs
+    }
+    integ = None
+    if error_tolerance is not None:
+        error_tolerance = validate.positive("error_tolerance", error_tolerance)
+        best, integ = _meet_tolerance(
+            model, frame_dt, start, est, costs, ranked, error_tolerance, options_for
+        )
+        ranked = sorted(
+            (k for k in ranked if costs[k].get("tolerance", {}).get("met")),
+            key=lambda k: costs[k]["evaluations_per_frame"],
+        )
     runner_up = next((k for k in ranked if k != best), None)
 
     def cost(k: str) -> str:
@@ -128,8 +155,66 @@ def choose_integrator(
     if runner_up is not None:
         reason += f" against {cost(runner_up)}"
     reason += f" (highest frequency {est.omega:.4g} rad/s)"
-    options = implicit_options if best == "implicit_euler" else dict(explicit_options or {})
-    return Choice(best, options, int(costs[best]["substeps"]), reason, est.omega, costs, est)
+    if error_tolerance is not None:
+        err = costs[best]["tolerance"]["estimated_error"]
+        reason += f"; estimated error of a frame {err:.2g} m <= {error_tolerance:g} m"
+    return Choice(best, options_for[best], int(costs[best]["substeps"]), reason, est.omega, costs, est, integ)
+
+
+def frame_error(stepper, start, scratch, frame_dt: float, n: int, order: int) -> float:
+    """Richardson's estimate [m] of the position error of one frame of n substeps from `start`
+    (module docstring): max over particles of |x_n - x_2n| 2^p / (2^p - 1); inf if either run diverges."""
+    a, b = scratch
+    try:
+        for s, count in ((a, n), (b, 2 * n)):
+            start.save(s)
+            stepper.advance(s, frame_dt / count, count)
+            stepper.check(s)
+    except DivergenceError:
+        return math.inf
+    xa = a.particle_x.to_numpy().astype(np.float64)
+    xb = b.particle_x.to_numpy().astype(np.float64)
+    diff = float(np.abs(xa - xb).max()) if len(xa) else 0.0
+    return diff * 2**order / (2**order - 1) if math.isfinite(diff) else math.inf
+
+
+def _meet_tolerance(model, frame_dt, start, est, costs, ranked, tol, options_for):
+    """(name, integrator) of the cheapest candidate whose frame error is within tol, each candidate's
+    substeps doubled from its stable count until it is; records the outcome in costs[name]["tolerance"]
+    and updates its substeps and cost. Raises ParameterError if none meets it."""
+    from . import make_integrator  # here: the package imports this module
+
+    scratch = (model.state(), model.state())
+    found = None
+    for name in ranked:  # cheapest stable cost first: doubling only adds, so stop once one is cheaper
+        if (
+            found is not None
+            and costs[name]["evaluations_per_frame"] >= costs[found[0]]["evaluations_per_frame"]
+        ):
+            break
+        integ = make_integrator(name, **options_for[name])
+        stepper = integ.stepper_for(model)
+        stepper.stability_estimate = est  # the guard reuses the choice's estimate
+        n = costs[name]["substeps"]
+        per_frame = costs[name]["evaluations_per_frame"] / n
+        for _ in range(MAX_DOUBLINGS + 1):
+            err = frame_error(stepper, start, scratch, frame_dt, n, integ.order)
+            if err <= tol:
+                break
+            n *= 2
+        met = err <= tol
+        costs[name]["tolerance"] = {"substeps": n, "estimated_error": err if math.isfinite(err) else None,
+                                    "met": met}  # fmt: skip
+        if met:
+            costs[name].update(substeps=n, evaluations_per_frame=per_frame * n)
+            if found is None or per_frame * n < costs[found[0]]["evaluations_per_frame"]:
+                found = (name, integ)
+    if found is None:
+        raise ParameterError(
+            f"integrator='auto': no candidate of {ranked} keeps the estimated error of a {frame_dt:.3g} s "
+            f"frame within error_tolerance={tol:g} m with up to {2**MAX_DOUBLINGS}x its stable substeps"
+        )
+    return found
 
 
 def make_chosen(model, choice: Choice):
@@ -137,6 +222,8 @@ def make_chosen(model, choice: Choice):
     the stability guard does not repeat it)."""
     from . import make_integrator  # here: the package imports this module
 
+    if choice.integrator is not None:  # made while testing accuracy: already bound, compiled
+        return choice.integrator
     integ = make_integrator(choice.name, **choice.options)
     integ.stepper_for(model).stability_estimate = choice.estimate
     return integ
