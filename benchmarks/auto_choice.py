@@ -23,17 +23,14 @@ import time
 
 import taichi as ti
 from common import (
-    OtherLoad,
     clock,
     command_line,
-    engine_fingerprint,
-    load_average,
     log,
-    machine_info,
-    machine_table,
+    machine_section,
     md_table,
     output_paths,
     parse_args,
+    run_started,
     write_section,
 )
 
@@ -167,14 +164,7 @@ def report(rows, args, started: dict, elapsed: float) -> str:
                 fit,
             ),
             "",
-            machine_table(
-                machine_info(),
-                load_start=started["load"],
-                load_end=load_average(),
-                date=started["date"],
-                engine=started["engine"],
-                other=started["other"],
-            ),
+            machine_section(started),
         ]
     )
 
@@ -182,12 +172,7 @@ def report(rows, args, started: dict, elapsed: float) -> str:
 def main(argv=None) -> int:
     args = parse_args(__doc__.splitlines()[0], argv)
     md_path, out_dir = output_paths(args)
-    started = {
-        "load": load_average(),
-        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-        "engine": engine_fingerprint(),
-        "other": OtherLoad(),
-    }
+    started = run_started()
     ta.init("cpu", log_level=ti.ERROR)
     t0 = time.perf_counter()
     rows = measure(QUICK_SCENES if args.quick else SCENES, 5 if args.quick else FRAMES, BUDGET_S)

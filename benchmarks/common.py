@@ -205,6 +205,28 @@ def machine_table(
 # Taichi and timing
 
 
+def run_started() -> dict:
+    """What a run's machine table needs from its start: load, date (UTC), engine sources, other load."""
+    return {
+        "load": load_average(),
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "engine": engine_fingerprint(),
+        "other": OtherLoad(),
+    }
+
+
+def machine_section(started: dict) -> str:
+    """machine_table for a run begun with run_started(), closed now."""
+    return machine_table(
+        machine_info(),
+        load_start=started["load"],
+        load_end=load_average(),
+        date=started["date"],
+        engine=started["engine"],
+        other=started["other"],
+    )
+
+
 def init(precision: str, **options) -> str:
     """Reset Taichi on the CPU with the given float precision; warnings about f64 -> f32 copies in
     `Model.state()` are silenced (they would swamp the output)."""
