@@ -20,8 +20,9 @@ from .watchdog import Watchdog, watch_particle
 
 MAX_STABLE_SPLIT = 4096  # the most substeps the retry policy takes from the stability estimate
 # A frame of substeps of a fusable method runs as one serial kernel on the CPU below this much work
-# (particles + element entries): there a parallel launch costs more than its loop (the second core takes
-# ~60 us to join a loop here); above it, one parallel launch per substep (benchmarks/frame_fusion.py).
+# (particles + element entries): there a parallel loop costs more than its work (the second core takes
+# ~80 us to join a loop here); above it, one parallel launch per substep (benchmarks/frame_fusion.py:
+# serial frame faster up to 80^2 cloth, 82k work; launches from 96^2, 118k).
 FRAME_SERIAL_BELOW = 100_000
 
 
