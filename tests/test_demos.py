@@ -184,6 +184,8 @@ def test_cli_lists_demos_and_rejects_bad_input(capsys):
     assert "unknown demo 'nope'" in capsys.readouterr().err
     assert main(["demo", "--frames", "0"]) == 2
     assert "--frames must be >= 1, got 0" in capsys.readouterr().err
+    assert main(["demo", "fountain", "--integrator", "auto", "--frames", "1"]) == 2
+    assert "--integrator auto applies to the cloth, drape, flag demos" in capsys.readouterr().err
 
 
 def test_view_without_display_says_what_is_missing(monkeypatch, capsys):
