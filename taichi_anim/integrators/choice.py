@@ -70,6 +70,35 @@ def implicit_iterations(h_omega: float, tol: float, max_iterations: int) -> floa
     return min(float(max_iterations), max(1.0, CG_BOUND_SHARE * bound))
 
 
+def _stable_cost(name: str, est, frame_dt: float, implicit_substeps: int, implicit_options: dict, coupled):
+    """Substeps and force evaluations per frame of candidate `name` at its stable step (module
+    docstring); evaluations_per_frame is inf when no step up to MAX_AUTO_SUBSTEPS is stable."""
+    if name == "implicit_euler":
+        h = frame_dt / implicit_substeps
+        tol = implicit_options.get("tol", 1e-4)
+        iters = implicit_iterations(h * est.omega, tol, implicit_options.get("max_iterations", 200))
+        iters = iters if coupled else 0.0
+        return {
+            "substeps": implicit_substeps,
+            "evaluations_per_frame": implicit_substeps * (IMPLICIT_ASSEMBLY + CG_ITERATION * iters),
+            "limit": None,
+            "note": f"~{iters:.0f} PCG iterations per step (h omega {h * est.omega:.3g}, tol {tol:g})",
+        }
+    limit = stability_limit(name, est.omega, est.zeta)
+    if limit is None or limit <= 0.0:
+        n = math.inf
+    elif math.isinf(limit):
+        n = 1
+    else:
+        n = max(1, math.ceil(frame_dt / (AUTO_SAFETY * limit) - 1e-9))
+    return {
+        "substeps": n if math.isfinite(n) else None,
+        "evaluations_per_frame": STAGES[name] * n if n <= MAX_AUTO_SUBSTEPS else math.inf,
+        "limit": None if limit is None or math.isinf(limit) else limit,
+        "note": "no stable step" if not math.isfinite(n) else f"{n} substeps within the limit",
+    }
+
+
 def choose_integrator(
     model,
     frame_dt: float,
@@ -92,34 +121,8 @@ def choose_integrator(
     implicit_options = dict(implicit_options or {})
     start = model.state() if state is None else state
     est = state_frequency(model, start)
-    costs = {}
-    for name in candidates:
-        if name == "implicit_euler":
-            h = frame_dt / implicit_substeps
-            tol = implicit_options.get("tol", 1e-4)
-            cap = implicit_options.get("max_iterations", 200)
-            iters = implicit_iterations(h * est.omega, tol, cap) if model.coupled else 0.0
-            per_step = IMPLICIT_ASSEMBLY + CG_ITERATION * iters
-            costs[name] = {
-                "substeps": implicit_substeps,
-                "evaluations_per_frame": implicit_substeps * per_step,
-                "limit": None,
-                "note": f"~{iters:.0f} PCG iterations per step (h omega {h * est.omega:.3g}, tol {tol:g})",
-            }
-            continue
-        limit = stability_limit(name, est.omega, est.zeta)
-        if limit is None or limit <= 0.0:
-            n = math.inf
-        elif math.isinf(limit):
-            n = 1
-        else:
-            n = max(1, math.ceil(frame_dt / (AUTO_SAFETY * limit) - 1e-9))
-        costs[name] = {
-            "substeps": n if math.isfinite(n) else None,
-            "evaluations_per_frame": STAGES[name] * n if n <= MAX_AUTO_SUBSTEPS else math.inf,
-            "limit": None if limit is None or math.isinf(limit) else limit,
-            "note": "no stable step" if not math.isfinite(n) else f"{n} substeps within the limit",
-        }
+    costs = {name: _stable_cost(name, est, frame_dt, implicit_substeps, implicit_options, model.coupled)
+             for name in candidates}  # fmt: skip
     best = min(costs, key=lambda k: costs[k]["evaluations_per_frame"])
     if math.isinf(costs[best]["evaluations_per_frame"]):
         raise ParameterError(
