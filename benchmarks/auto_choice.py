@@ -66,7 +66,7 @@ def time_frames(scene, frames: int, budget: float) -> dict:
 def measure(scenes: dict, frames: int, budget: float) -> list[dict]:
     rows = []
     for name, options in scenes.items():
-        auto = make_scene(name, **options)  # integrator="auto"
+        auto = make_scene(name, **options, integrator="auto")
         record = auto.integrator_choice
         row = {"scene": name, "options": options, "choice": record, "measured": {}}
         for cand, est in record["candidates"].items():

@@ -14,7 +14,7 @@ from . import rng, runtime, validate
 from .errors import ConvergenceError, DivergenceError, OutputError, ParameterError, StabilityError
 from .integrators import INTEGRATORS
 
-AUTO_SCENES = ("cloth", "drape", "flag")  # demos that choose their method with integrator="auto"
+AUTO_SCENES = ("cloth", "drape", "flag")  # demos that can choose their method (integrator="auto")
 
 EXIT_PARAMETER = 2
 EXIT_OUTPUT = 3
@@ -47,8 +47,8 @@ def _parser() -> argparse.ArgumentParser:
         "--integrator",
         choices=sorted([*INTEGRATORS, "auto"]),
         default=None,
-        help="override the integrator ('auto', the cloth, drape and flag demos' default: the cheapest method "
-        "stable at the frame's step)",
+        help="override the integrator ('auto', the cloth and drape demos' default, also for flag: the "
+        "cheapest method stable at the frame's step)",
     )
     d.add_argument(
         "--material",

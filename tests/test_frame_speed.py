@@ -162,7 +162,7 @@ def test_auto_demos_choose_per_scene_and_record_it(tmp_path):
     assert '"integrator_choice"' in manifest and '"frame_mode"' in manifest
     assert summary["frame_mode"]["mode"] == "serial_frame"
     assert summary["steps"] == 2 * cloth.substeps
-    flag = make_scene("flag", resolution=10)
+    flag = make_scene("flag", resolution=10, integrator="auto")
     assert flag.integrator.name == flag.integrator_choice["chosen"] == "implicit_euler"
     assert flag.integrator_choice["candidates"]["symplectic_euler"]["substeps"] > 10 * flag.substeps
     with pytest.raises(ParameterError, match="substeps"):

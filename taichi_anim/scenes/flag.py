@@ -2,10 +2,11 @@
 
 Continuum cloth: a Saint Venant–Kirchhoff triangle membrane (Volino et al. 2009) and discrete-shells
 bending (Grinspun et al. 2003) on a grid mesh, pinned along the pole, blown by per-triangle flat-plate
-drag and lift against a gusting wind. The default integrator="auto" picks the cheapest method stable at
-the frame's step (integrators/choice.py): here linearised backward Euler with PCG (Baraff & Witkin 1998),
-since the aerodynamic damping would hold symplectic Euler to thousands of substeps. Each frame exports
-the flag as a PLY mesh with vertex normals."""
+drag and lift against a gusting wind, stepped by linearised backward Euler with PCG (Baraff & Witkin
+1998): what integrator="auto" (integrators/choice.py) chooses for it too, since the aerodynamic damping
+would hold symplectic Euler to thousands of substeps (benchmarks/auto_choice.py); the default skips the
+choice's frequency estimate, which needs the membrane's probe kernels compiled. Each frame exports the
+flag as a PLY mesh with vertex normals."""
 
 import numpy as np
 
@@ -36,7 +37,7 @@ def fabric(*, youngs_modulus: float = 2.0e3, bending_stiffness: float = 2.0e-4) 
 def build(
     *,
     seed: int = 0,
-    integrator: str = "auto",
+    integrator: str = "implicit_euler",
     resolution: int = 40,
     width: float = 1.5,
     height: float = 1.0,
