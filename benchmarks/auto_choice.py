@@ -17,7 +17,6 @@ f32, CPU, Taichi's default threads.
 
 from __future__ import annotations
 
-import json
 import statistics
 import time
 
@@ -30,8 +29,8 @@ from common import (
     md_table,
     output_paths,
     parse_args,
+    publish,
     run_started,
-    write_section,
 )
 
 import taichi_anim as ta
@@ -178,11 +177,7 @@ def main(argv=None) -> int:
     rows = measure(QUICK_SCENES if args.quick else SCENES, 5 if args.quick else FRAMES, BUDGET_S)
     elapsed = time.perf_counter() - t0
     text = report(rows, args, started, elapsed)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "auto_choice.md").write_text(text + "\n")
-    (out_dir / "auto_choice.json").write_text(json.dumps(rows, indent=1))
-    write_section(md_path, "auto_choice", text)
-    log(f"wrote {out_dir / 'auto_choice.md'} and its section of {md_path} in {elapsed / 60:.1f} min")
+    publish(md_path, out_dir, "auto_choice", text, rows, elapsed)
     return 0
 
 

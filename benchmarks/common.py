@@ -227,6 +227,17 @@ def machine_section(started: dict) -> str:
     )
 
 
+def publish(md_path: Path, out_dir: Path, name: str, text: str, data, elapsed: float) -> None:
+    """Write a run's page `out_dir/<name>.md`, its raw data `<name>.json`, and its section of md_path."""
+    import json
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / f"{name}.md").write_text(text + "\n")
+    (out_dir / f"{name}.json").write_text(json.dumps(data, indent=1))
+    write_section(md_path, name, text)
+    log(f"wrote {out_dir / (name + '.md')} and its section of {md_path} in {elapsed / 60:.1f} min")
+
+
 def init(precision: str, **options) -> str:
     """Reset Taichi on the CPU with the given float precision; warnings about f64 -> f32 copies in
     `Model.state()` are silenced (they would swamp the output)."""

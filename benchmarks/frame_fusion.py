@@ -21,7 +21,6 @@ after the same frames are bitwise equal to "steps".
 
 from __future__ import annotations
 
-import json
 import os
 import statistics
 import time
@@ -37,8 +36,8 @@ from common import (
     md_table,
     output_paths,
     parse_args,
+    publish,
     run_started,
-    write_section,
 )
 
 import taichi_anim as ta
@@ -182,11 +181,7 @@ def main(argv=None) -> int:
     rows = measure(QUICK_SIZES if quick else SIZES, 10 if quick else FRAMES, 1 if quick else ROUNDS)
     elapsed = time.perf_counter() - t0
     text = report(rows, args, started, elapsed)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "frame_fusion.md").write_text(text + "\n")
-    (out_dir / "frame_fusion.json").write_text(json.dumps(rows, indent=1))
-    write_section(md_path, "frame_fusion", text)
-    log(f"wrote {out_dir / 'frame_fusion.md'} and its section of {md_path} in {elapsed / 60:.1f} min")
+    publish(md_path, out_dir, "frame_fusion", text, rows, elapsed)
     return 0
 
 

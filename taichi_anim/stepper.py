@@ -102,7 +102,7 @@ class Stepper:
         calls of step(state, dt / substeps), launched as `frame_mode` says (one kernel for the whole
         frame, one per substep without the per-step Python work, or step by step)."""
         dt = validate.positive("dt", dt)
-        n = validate.count("substeps", substeps, 1)
+        n = 1 if type(substeps) is int and substeps == 1 else validate.count("substeps", substeps, 1)
         model = self.model
         if state.model is not model:
             raise ParameterError("state belongs to another model: make it with this model's state()")
