@@ -23,6 +23,7 @@ from ..model import Model
 from ..render import fit_camera, render_png
 from ..stability import auto_substeps
 from ..state import ParticleSnapshot, State
+from .content import Lines, Mesh, Points, pairs_from_segments, segments_from_pairs
 
 # Cloth faces: the front (normal towards the camera) and the back in two colours, so folds read clearly;
 # props (colliders drawn for context) in grey.
@@ -105,64 +106,82 @@ class Scene:
         rows = np.searchsorted(snap.index, used)  # cloth vertices never die, so every one is in snap
         return snap.x[rows], np.searchsorted(used, tri), used
 
-    def export_frame(self, out_dir, frame: int) -> list[Path]:
-        """Write this frame's point cloud (with velocity and age) and, with trails, its line set. With
-        cloth, `<name>_NNNN.ply` is the cloth mesh with area-weighted vertex normals, and the particles
-        that are no cloth vertex (if any) go to `<name>_particles_NNNN.ply`. NNNN has 4 digits, or as
-        many as the run's frame count needs (the runner sets io.export.frame_numbering); every file is
-        published only once complete and flushed (io.atomic)."""
+    def frame_content(self) -> list:
+        """What this instant shows, as content items (scenes/content.py) that PLY, USD and the renderer
+        all read: the cloth mesh (vertex normals area-weighted), the particles that are no cloth vertex
+        (with velocity and age), trails, props as collider meshes and guides as lines."""
         snap = self.state.snapshot()
         mesh = self.cloth_mesh(snap)
-        paths = []
+        items = []
         keep = np.ones(len(snap.x), dtype=bool)
         if mesh is not None:
             vertices, triangles, particle = mesh
             normals = area_weighted_normals(vertices, triangles)
-            paths.append(
-                write_triangle_mesh(frame_path(out_dir, self.name, frame), vertices, triangles, normals)
-            )
+            items.append(Mesh("", vertices, triangles, normals, tuple(CLOTH_FRONT), role="cloth"))
             keep = ~np.isin(snap.index, particle)
         if mesh is None or keep.any():
-            name = self.name if mesh is None else f"{self.name}_particles"
-            paths.append(
-                write_point_cloud(
-                    frame_path(out_dir, name, frame),
+            items.append(
+                Points(
+                    "" if mesh is None else "particles",
                     snap.x[keep],
                     snap.color[keep],
+                    snap.index[keep],
                     attributes={"velocity": snap.v[keep], "age": snap.age[keep]},
                 )
             )
         if snap.trails is not None:
             points, lines = trails_to_line_set(snap.trails)
-            paths.append(write_line_set(frame_path(out_dir, f"{self.name}_trails", frame), points, lines))
-        return paths
+            items.append(Lines("trails", points, lines, color=(0.5, 0.7, 1.0), role="trails", export=True))
+        items += self.prop_items()
+        items += self.guide_items()
+        return items
+
+    def prop_items(self) -> list:
+        """The scene's props (colliders drawn for context) as static collider meshes."""
+        items = []
+        for k, (v, f) in enumerate(self.props):
+            v, f = np.asarray(v, dtype=float), np.asarray(f)
+            name = "collider" if len(self.props) == 1 else f"collider{k}"
+            items.append(
+                Mesh(name, v, f, area_weighted_normals(v, f), tuple(PROP_COLOR), "collider", False, False)
+            )
+        return items
+
+    def guide_items(self) -> list:
+        """Guides (the bounds' box edges unless the scene gives its own) as lines that are only drawn."""
+        lo, hi = (np.asarray(b, dtype=float) for b in self.bounds)
+        begin, end = _box_edges(lo, hi) if self.guides is None else self.guides
+        if not len(begin):
+            return []
+        points, segments = segments_from_pairs(begin, end)
+        return [Lines("guides", points, segments, GUIDE_COLOR)]
+
+    def export_frame(self, out_dir, frame: int) -> list[Path]:
+        """Write this frame's exported items as PLY: the cloth mesh with its normals as `<name>_NNNN.ply`,
+        particles (with velocity and age) as a point cloud (`<name>_particles_NNNN.ply` beside cloth),
+        trails as a line set, blob surfaces and moving colliders as meshes. NNNN has 4 digits, or as many
+        as the run's frame count needs (the runner sets io.export.frame_numbering); every file is
+        published only once complete and flushed (io.atomic)."""
+        return write_items_ply(self.frame_content(), out_dir, self.name, frame)
 
     def render(self, path, resolution=(960, 720)) -> Path:
         """A PNG of the current state (headless; no display or Vulkan needed): particles as dots, cloth
         shaded (front and back in two colours), props in grey, trails and guides as lines."""
-        snap = self.state.snapshot()
+        items = self.frame_content()
         lo, hi = (np.asarray(b, dtype=float) for b in self.bounds)
         camera = fit_camera(lo, hi, direction=self.view, resolution=resolution, margin=1.1 / self.zoom)
-        lines = None
-        if snap.trails is not None and len(snap.x):
-            tr = snap.trails
-            lines = (tr[:, :-1].reshape(-1, 3), tr[:, 1:].reshape(-1, 3))
-        guides = _box_edges(lo, hi) if self.guides is None else self.guides
-        all_lines = (
-            guides if lines is None else (np.vstack([lines[0], guides[0]]), np.vstack([lines[1], guides[1]]))
-        )
-        mesh = self.cloth_mesh(snap)
-        points, colors = snap.x, snap.color
-        if mesh is not None:
-            keep = ~np.isin(snap.index, mesh[2])
-            points, colors = points[keep], colors[keep]
-        triangles = _surfaces(camera.eye, mesh, self.props)
+        points = [i for i in items if isinstance(i, Points) and len(i.positions)]
+        lines = [pairs_from_segments(i) for i in items if isinstance(i, Lines) and len(i.segments)]
+        cloth = next((i for i in items if isinstance(i, Mesh) and i.role == "cloth"), None)
+        props = [(i.vertices, i.triangles) for i in items if isinstance(i, Mesh) and i.role != "cloth"]
+        mesh = None if cloth is None else (cloth.vertices, cloth.triangles)
+        triangles = _surfaces(camera.eye, mesh, props)
         return render_png(
             path,
-            points=points if len(points) else None,
-            colors=colors if len(points) else None,
+            points=np.vstack([p.positions for p in points]) if points else None,
+            colors=np.vstack([p.colors for p in points]) if points else None,
             radius_px=2.0,
-            lines=all_lines if len(all_lines[0]) else None,
+            lines=(np.vstack([b for b, _ in lines]), np.vstack([e for _, e in lines])) if lines else None,
             line_colors=GUIDE_COLOR,
             triangles=triangles,
             camera=camera,
@@ -221,3 +240,20 @@ def _surfaces(eye, mesh, props):
 def _unit_normals(v, f):
     n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+
+
+def write_items_ply(items, out_dir, scene: str, frame: int) -> list[Path]:
+    """Write every item with `export` set as one PLY file `<scene>[_<item.name>]_NNNN.ply`: meshes with
+    their normals, points with their colours and attributes, lines as line sets."""
+    paths = []
+    for item in items:
+        if not item.export:
+            continue
+        path = frame_path(out_dir, scene if not item.name else f"{scene}_{item.name}", frame)
+        if isinstance(item, Mesh):
+            paths.append(write_triangle_mesh(path, item.vertices, item.triangles, item.normals))
+        elif isinstance(item, Points):
+            paths.append(write_point_cloud(path, item.positions, item.colors, attributes=item.attributes))
+        else:
+            paths.append(write_line_set(path, item.points, item.segments))
+    return paths

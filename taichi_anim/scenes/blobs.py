@@ -12,9 +12,9 @@ import numpy as np
 from .. import Builder, make_integrator
 from ..blobs import BlobField, BlobMesh
 from ..errors import ParameterError
-from ..io.export import frame_path
 from ..render import fit_camera, render_png
 from .base import Scene, _box_edges
+from .content import Mesh
 
 WATER = (0.35, 0.6, 0.95)
 
@@ -38,11 +38,11 @@ class BlobScene(Scene):
         self._mesh_cache = (s.step_count, mesh)
         return mesh
 
-    def export_frame(self, out_dir, frame: int) -> list:
-        """The particles (Scene.export_frame) and `<name>_mesh_NNNN.ply`: the mesh with its normals."""
-        paths = super().export_frame(out_dir, frame)
-        paths.append(self.mesh().write(frame_path(out_dir, f"{self.name}_mesh", frame)))
-        return paths
+    def frame_content(self) -> list:
+        """The particles (Scene.frame_content) and the isosurface as the mesh item "mesh" with its normals."""
+        mesh = self.mesh()
+        surface = Mesh("mesh", mesh.vertices, mesh.triangles, mesh.normals, WATER, role="surface")
+        return [*super().frame_content(), surface]
 
     def render(self, path, resolution=(960, 720)):
         """A PNG of the current mesh, shaded, inside the box's edges."""

@@ -12,9 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import Builder, RigidMotion, make_integrator
-from ..io.export import frame_path, write_triangle_mesh
-from .base import Scene
+from .base import PROP_COLOR, Scene
 from .cloth import FRAME_DT, material_for, substeps_for
+from .content import Mesh
 from .drape import uv_sphere
 
 BALL_FRAMES = 9  # keyframes of the ball's motion (slerp between them)
@@ -44,18 +44,13 @@ class MovingMeshScene(Scene):
         v, f = self.ball
         return self.motion.apply(v, self.state.time), f
 
-    def export_frame(self, out_dir, frame: int) -> list:
-        paths = super().export_frame(out_dir, frame)
+    def frame_content(self) -> list:
+        """The cloth (Scene.frame_content) and the ball where it is now (`<name>_ball_NNNN.ply`)."""
         v, f = self.ball_now()
         normals = v - v.mean(axis=0)  # a ball: radial normals
         normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-        paths.append(write_triangle_mesh(frame_path(out_dir, f"{self.name}_ball", frame), v, f, normals))
-        return paths
-
-    def render(self, path, resolution=(960, 720)):
-        v, f = self.ball_now()
-        self.props = [(v - 0.03 * (v - v.mean(axis=0)), f)]  # drawn smaller: the cloth covers its facets
-        return super().render(path, resolution)
+        ball = Mesh("ball", v, f, normals, tuple(PROP_COLOR), role="collider", animated=True, export=True)
+        return [*super().frame_content(), ball]
 
 
 def build(

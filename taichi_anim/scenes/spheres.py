@@ -7,9 +7,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import Builder, make_integrator
-from ..io.export import frame_path, write_point_cloud
 from ..render import fit_camera, render_png
 from .base import Scene, _box_edges
+from .content import Points
 
 FRAME_DT = 1 / 30  # [s]
 SLOW, FAST = np.array([0.2, 0.35, 0.75]), np.array([1.0, 0.6, 0.15])
@@ -25,10 +25,12 @@ class SpheresScene(Scene):
         s = np.clip(speed / 2.0, 0.0, 1.0)[:, None]  # 0..2 m/s: blue..orange
         return snap, (1 - s) * SLOW + s * FAST, self.model.particle_radii(snap.index)
 
-    def export_frame(self, out_dir, frame: int) -> list:
+    def frame_content(self) -> list:
+        """The spheres (radius, velocity; coloured by speed) and the box's edges."""
         snap, color, radius = self._snapshot()
         attributes = {"radius": radius, "velocity": snap.v}
-        return [write_point_cloud(frame_path(out_dir, self.name, frame), snap.x, color, attributes)]
+        spheres = Points("", snap.x, color, snap.index, radius, attributes, role="spheres")
+        return [spheres, *self.guide_items()]
 
     def render(self, path, resolution=(960, 720)):
         snap, color, _ = self._snapshot()
