@@ -173,3 +173,63 @@ def test_every_public_name_is_in_the_reference_with_a_docstring(built_docs):
                 undocumented.append(full)
     assert not missing, f"public names absent from the API reference: {missing}"
     assert not undocumented, f"public functions/classes without a docstring: {undocumented}"
+
+
+# Public methods whose docstrings are still to be written, in modules this test's authors do not
+# maintain; remove a name when its docstring lands (the test fails on any other undocumented method,
+# and on a name here that has gained a docstring, so the list only shrinks).
+PENDING_METHOD_DOCSTRINGS = {
+    "taichi_anim.health.Health.count",
+    "taichi_anim.health.Health.event",
+    "taichi_anim.health.Health.report",
+    "taichi_anim.health.Health.to_dict",
+    "taichi_anim.integrators.adaptive.IntegratorAdaptive.settings",
+    "taichi_anim.integrators.base.Integrator.advance",
+    "taichi_anim.integrators.base.Integrator.settings",
+    "taichi_anim.integrators.implicit_euler.IntegratorImplicitEuler.advance",
+    "taichi_anim.integrators.implicit_euler.IntegratorImplicitEuler.newton",
+    "taichi_anim.integrators.implicit_euler.IntegratorImplicitEuler.settings",
+    "taichi_anim.integrators.implicit_euler.IntegratorImplicitEuler.update",
+    "taichi_anim.integrators.rk45.IntegratorRK45.settings",
+    "taichi_anim.model.Model.accel",
+    "taichi_anim.model.Model.alive",
+    "taichi_anim.model.Model.emit",
+    "taichi_anim.model.Model.inv_mass",
+    "taichi_anim.model.Model.mass",
+    "taichi_anim.model.Model.radius",
+    "taichi_anim.scenes.base.Scene.frame_dt",
+    "taichi_anim.scenes.base.Scene.settings",
+    "taichi_anim.spatial.mesh_query.TriangleMesh.bound_closest",
+}
+
+
+def public_classes() -> list[type]:
+    classes = []
+    for module_name in API_MODULES:
+        module = importlib.import_module(module_name)
+        for name in public_names(module_name):
+            obj = getattr(module, name)
+            if inspect.isclass(obj) and obj not in classes:
+                classes.append(obj)
+    return classes
+
+
+def test_public_methods_have_docstrings():
+    """Every public method and property of a public class, inherited ones included, says what it does."""
+    undocumented = set()
+    for cls in public_classes():
+        for name in dir(cls):
+            if name.startswith("_"):
+                continue
+            owner = next((c for c in cls.__mro__ if name in vars(c)), None)
+            if owner is None or not owner.__module__.startswith("taichi_anim"):
+                continue
+            attr = vars(owner)[name]
+            if not (callable(attr) or isinstance(attr, (property, staticmethod, classmethod))):
+                continue
+            if not inspect.getdoc(getattr(cls, name)) and not inspect.getdoc(attr):
+                undocumented.add(f"{owner.__module__}.{owner.__qualname__}.{name}")
+    new = sorted(undocumented - PENDING_METHOD_DOCSTRINGS)
+    done = sorted(PENDING_METHOD_DOCSTRINGS - undocumented)
+    assert not new, f"public methods without a docstring: {new}"
+    assert not done, f"these have docstrings now: remove them from PENDING_METHOD_DOCSTRINGS: {done}"
