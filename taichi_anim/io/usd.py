@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -26,7 +27,7 @@ import numpy as np
 
 from .. import validate
 from ..errors import OutputError, ParameterError
-from .atomic import atomic_path
+from .atomic import _REASONS, atomic_path
 from .export import area_weighted_normals
 
 USD_EXTENSIONS = (".usd", ".usdc", ".usda")
@@ -130,13 +131,15 @@ class UsdStageWriter:
 
         for path, first in self._seen.items():
             attr = UsdGeom.Imageable(self.stage.GetPrimAtPath(path)).GetVisibilityAttr()
-            hidden = attr.GetNumTimeSamples() and attr.Get(code) == UsdGeom.Tokens.invisible
+            sampled = attr.GetNumTimeSamples() > 0
             if path not in present:
+                if not sampled:
+                    attr.Set(UsdGeom.Tokens.inherited, first)  # shown until now
                 attr.Set(UsdGeom.Tokens.invisible, code)
-            elif first == code and self.codes:
+            elif first == code and self.codes:  # appears after the first frame
                 attr.Set(UsdGeom.Tokens.invisible, self.codes[0])
                 attr.Set(UsdGeom.Tokens.inherited, code)
-            elif hidden:
+            elif sampled and attr.Get(code) == UsdGeom.Tokens.invisible:
                 attr.Set(UsdGeom.Tokens.inherited, code)
 
     def _points(self, path: str, item, code: float) -> None:
@@ -308,16 +311,11 @@ class UsdStageWriter:
 
         with atomic_path(self.path) as tmp:
             try:
-                ok = layer.Export(str(tmp), args={"format": fmt})
+                ok, why = layer.Export(str(tmp), args={"format": fmt}), "the USD writer reported a failure"
             except Tf.ErrorException as e:
-                ok, why = False, " ".join(str(e).split())
-            else:
-                why = "the USD writer reported a failure"
+                ok, why = False, _usd_reason(str(e))
             if not ok:
-                raise OutputError(
-                    f"cannot write {self.path}: could not write the stage ({why}); the disk may be full or "
-                    "a file size limit reached"
-                )
+                raise OutputError(f"cannot write {self.path}: could not write the stage ({why})")
         return self.path
 
     close = save
@@ -455,6 +453,17 @@ def _interpolate_frames(frames, t: float) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------- helpers
+
+
+def _usd_reason(message: str) -> str:
+    """The first of the messages in a Tf error ("Error in 'F' at line N in file P : 'what'"), in the
+    words atomic.output_error uses for the same errno (a full disk, a file size limit, ...)."""
+    found = re.findall(r" : '([^']*)'", message)
+    reason = found[0] if found else " ".join(message.split())[:200]
+    for number, words in _REASONS.items():
+        if os.strerror(number) in reason:
+            return words
+    return reason
 
 
 def _identifier(name: str) -> str:
