@@ -17,6 +17,7 @@ a reader never sees a half-written stage.
 
 from __future__ import annotations
 
+import errno
 import math
 import os
 import re
@@ -27,7 +28,7 @@ import numpy as np
 
 from .. import validate
 from ..errors import OutputError, ParameterError
-from .atomic import _REASONS, atomic_path
+from .atomic import atomic_path, output_error
 from .export import area_weighted_normals
 
 USD_EXTENSIONS = (".usd", ".usdc", ".usda")
@@ -311,11 +312,11 @@ class UsdStageWriter:
 
         with atomic_path(self.path) as tmp:
             try:
-                ok, why = layer.Export(str(tmp), args={"format": fmt}), "the USD writer reported a failure"
+                ok = layer.Export(str(tmp), args={"format": fmt})
             except Tf.ErrorException as e:
-                ok, why = False, _usd_reason(str(e))
+                raise _write_error(self.path, str(e)) from None
             if not ok:
-                raise OutputError(f"cannot write {self.path}: could not write the stage ({why})")
+                raise OutputError(f"cannot write {self.path}: the USD writer reported a failure")
         return self.path
 
     close = save
@@ -455,15 +456,15 @@ def _interpolate_frames(frames, t: float) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------- helpers
 
 
-def _usd_reason(message: str) -> str:
-    """The first of the messages in a Tf error ("Error in 'F' at line N in file P : 'what'"), in the
-    words atomic.output_error uses for the same errno (a full disk, a file size limit, ...)."""
+def _write_error(path: Path, message: str) -> OutputError:
+    """An OutputError for a Tf error raised while writing `path` ("Error in 'F' at line N in file P :
+    'what'", repeated): in atomic.output_error's words where it names a known OSError (a full disk, a
+    file size limit, permissions), else with its first message."""
+    for number in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EROFS):
+        if os.strerror(number) in message:
+            return output_error(path, OSError(number, os.strerror(number)))
     found = re.findall(r" : '([^']*)'", message)
-    reason = found[0] if found else " ".join(message.split())[:200]
-    for number, words in _REASONS.items():
-        if os.strerror(number) in reason:
-            return words
-    return reason
+    return OutputError(f"cannot write {path}: {found[0] if found else ' '.join(message.split())[:200]}")
 
 
 def _identifier(name: str) -> str:
