@@ -34,6 +34,7 @@ from .export import area_weighted_normals
 USD_EXTENSIONS = (".usd", ".usdc", ".usda")
 LAYER_KEY = "taichi_anim"  # customLayerData entry the completeness check reads (atomic.usd_problem)
 GUIDE_WIDTH = 0.003  # [m] width of guide curves and container edges
+COLLIDER_COLOR = (0.55, 0.58, 0.62)  # the grey the renderer draws props in
 PLANE_HALF_SIZE = 1.0  # [m] half side of the square drawn for a plane collider without scene bounds
 
 
@@ -58,7 +59,7 @@ class UsdStageWriter:
         colliders: Iterable = (),
         bounds=None,
     ):
-        from pxr import Sdf, Tf, Usd, UsdGeom
+        from pxr import Tf, Usd, UsdGeom
 
         self.path = Path(path)
         if self.path.suffix.lower() not in USD_EXTENSIONS:
@@ -79,7 +80,7 @@ class UsdStageWriter:
         stage.SetFramesPerSecond(self.fps)
         world = UsdGeom.Xform.Define(stage, "/World")
         stage.SetDefaultPrim(world.GetPrim())
-        self.stage, self._sdf = stage, Sdf
+        self.stage = stage
 
     # ------------------------------------------------------------------------------------------ frames
 
@@ -102,8 +103,7 @@ class UsdStageWriter:
         for item in items:
             if isinstance(item, Mesh) and item.role == "collider" and self.colliders:
                 continue
-            path = f"/World/{self.name}" + (f"_{item.name}" if item.name else "")
-            path = "/World/" + _identifier(path[len("/World/") :])
+            path = "/World/" + _identifier(self.name + (f"_{item.name}" if item.name else ""))
             present.add(path)
             if isinstance(item, Points):
                 self._points(path, item, code)
@@ -144,7 +144,7 @@ class UsdStageWriter:
                 attr.Set(UsdGeom.Tokens.inherited, code)
 
     def _points(self, path: str, item, code: float) -> None:
-        from pxr import UsdGeom, Vt
+        from pxr import Sdf, UsdGeom, Vt
 
         geom = UsdGeom.Points.Define(self.stage, path)
         x = np.asarray(item.positions, dtype=np.float32).reshape(-1, 3)
@@ -173,14 +173,14 @@ class UsdStageWriter:
                 geom.GetVelocitiesAttr().Set(Vt.Vec3fArray.FromNumpy(a.reshape(n, 3)), code)
                 continue
             vec = a.ndim == 2 and a.shape[1] == 3
-            kind = self._sdf.ValueTypeNames.Float3Array if vec else self._sdf.ValueTypeNames.FloatArray
+            kind = Sdf.ValueTypeNames.Float3Array if vec else Sdf.ValueTypeNames.FloatArray
             pv = primvars.GetPrimvar(_identifier(key))
             if not pv:
                 pv = primvars.CreatePrimvar(_identifier(key), kind, UsdGeom.Tokens.vertex)
             data = Vt.Vec3fArray.FromNumpy(a.reshape(n, 3)) if vec else Vt.FloatArray.FromNumpy(a.reshape(n))
             pv.Set(data, code)
 
-    def _mesh(self, path: str, item, code: float, *, role: str | None = None) -> None:
+    def _mesh(self, path: str, item, code: float) -> None:
         from pxr import UsdGeom, Vt
 
         first = self._first(path, code)
@@ -193,7 +193,7 @@ class UsdStageWriter:
         when = code if item.animated else None  # None: the default value, no time sample
         if first:
             geom.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-            geom.CreateDoubleSidedAttr((role or item.role) == "cloth")
+            geom.CreateDoubleSidedAttr(item.role == "cloth")  # a sheet is seen from both sides
             geom.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
             geom.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(
                 Vt.Vec3fArray([tuple(float(c) for c in item.color)])
@@ -214,7 +214,7 @@ class UsdStageWriter:
         first = self._first(path, code)
         if guide and not first:
             return  # guides (box edges, poles) do not move: written once
-        geom = _curves(self.stage, path, item.points, item.segments, item.color)
+        geom = _curves(self.stage, path, item.color)
         if first:
             # Guides are context, not content: purpose "guide" (hidden unless a viewer shows guides).
             geom.CreatePurposeAttr(UsdGeom.Tokens.guide if guide else UsdGeom.Tokens.default_)
@@ -237,7 +237,7 @@ class UsdStageWriter:
                 begin, end = _box_edges(lo, hi)
                 points = np.vstack([begin, end])
                 segments = np.stack([np.arange(12), np.arange(12) + 12], axis=1)
-                geom = _curves(self.stage, path, points, segments, (0.55, 0.58, 0.62))
+                geom = _curves(self.stage, path, COLLIDER_COLOR)
                 geom.CreateWidthsAttr([GUIDE_WIDTH])
                 geom.SetWidthsInterpolation(UsdGeom.Tokens.constant)
                 _curve_points(geom, points, segments, None)
@@ -266,7 +266,7 @@ class UsdStageWriter:
         geom.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
         geom.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(counts))
         geom.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(faces.reshape(-1)))
-        geom.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([(0.55, 0.58, 0.62)]))
+        geom.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([COLLIDER_COLOR]))
         frames = getattr(collider, "frames", None)
         if frames is None:
             v = np.asarray(vertices, dtype=np.float32)
@@ -489,7 +489,8 @@ def _extent(x: np.ndarray, half: float):
     return Vt.Vec3fArray.FromNumpy(np.stack([x.min(axis=0) - half, x.max(axis=0) + half]).astype(np.float32))
 
 
-def _curves(stage, path, points, segments, color):
+def _curves(stage, path, color):
+    """A BasisCurves prim of linear curves with a constant colour (defined once)."""
     from pxr import UsdGeom, Vt
 
     geom = UsdGeom.BasisCurves.Define(stage, path)
