@@ -29,10 +29,10 @@ The two adjacent cases assume non-degenerate triangles: a pair that shares a ver
 triangle is not tested (zero-area triangles are reported on their own). Each test is first decided in
 float64 with a rigorous error bound and only the undecided pairs are recomputed exactly:
 - "disjoint" is certified by a separating axis (the two normals, the nine cross products of sides and
-  the in-plane side normals, Eberly's axes for triangles) along which the projections, each with the
-  bound 8 u sum |p_i u_i| on its rounding error (u = 2^-53, above the gamma_3 bound of a 3-term dot
-  product plus the roundings of the bound itself), do not overlap; any axis works, so it need not be
-  computed exactly;
+  the in-plane side normals: the separating axes of two triangles) along which the projections do not
+  overlap by more than their rounding bound, 8 u m |axis|_1 each (u = 2^-53, m the largest |coordinate|
+  of the pair: above the gamma_3 bound of a 3-term dot product plus the roundings of the bound and of
+  the comparison); any axis proves separation, so the axis itself need not be exact;
 - orient3d and the zero-area test use Shewchuk's static filters ("Adaptive precision floating-point
   arithmetic and fast robust geometric predicates", 1997: errbounds (7 + 56u)u and (3 + 16u)u times the
   permanent);
@@ -40,12 +40,15 @@ float64 with a rigorous error bound and only the undecided pairs are recomputed 
   coordinates scaled by the smallest power in the mesh are Python integers, on which the orientation
   predicates of `crossings.triangles_meet` (Moeller 1997, only +, - and x) are exact.
 
-Open3D (0.20) `is_self_intersecting`, and with it `is_watertight` and `get_volume` (which raises on a mesh
-that is not "watertight"), uses Moeller's triangle test with a fixed absolute epsilon 1e-6 on plane
-distances that are products of coordinate differences (m^3 here): on a mesh a few centimetres across it
-takes close non-adjacent triangles for coplanar ones and reports them as intersecting. On the blob mesh of
-the guide (1880 triangles) it reports 1 pair (8 of 5392 with the tetrahedra extractor) that meet exactly
-nowhere. Cost: about linear in the triangle count (sorting, the grid and the vectorised filters).
+Why not Open3D (0.20): `is_watertight` is edge-manifold and vertex-manifold and not `is_self_intersecting`,
+and `get_volume` raises unless the mesh is watertight and orientable. `is_self_intersecting` tests every
+pair of triangles without a shared vertex (F^2 / 2 box tests) with Moeller's 1997 test after scaling the
+pair's six points to zero mean and unit spread per axis, and sets plane distances below a fixed 1e-6 to
+zero. A sliver's normal is tiny, so every point lies "on" its plane, the pair goes to the coplanar branch
+and overlapping projections count as an intersection: on blob meshes it reports pairs a micrometre apart
+(tests/test_mesh_check.py has one: 320 triangles, 4 false pairs, so `get_volume` refuses it).
+Cost: about linear in the triangle count (sorts, the grid and the vectorised filters); the exact integer
+step only sees pairs that touch or nearly touch.
 """
 
 from __future__ import annotations
@@ -329,7 +332,8 @@ def _orient3d_zero(x, exact, a, b, c, d) -> np.ndarray:
     det = ad[:, 0] * (m[0] - m[1]) + bd[:, 0] * (m[2] - m[3]) + cd[:, 0] * (m[4] - m[5])
     perm = np.abs(ad[:, 0]) * (np.abs(m[0]) + np.abs(m[1])) + np.abs(bd[:, 0]) * (np.abs(m[2]) + np.abs(m[3]))
     perm += np.abs(cd[:, 0]) * (np.abs(m[4]) + np.abs(m[5]))
-    zero = np.abs(det) <= _O3D_BOUND * perm + _TINY  # undecided; exactly below
+    with np.errstate(invalid="ignore", over="ignore"):  # overflow gives inf or nan: undecided
+        zero = ~(np.abs(det) > _O3D_BOUND * perm + _TINY)  # undecided; decided exactly below
     s = np.flatnonzero(zero)
     if len(s):
         pa, pb, pc, pd = (exact.points(v[s]) for v in (a, b, c, d))
@@ -342,8 +346,9 @@ def _zero_area(x: np.ndarray, exact: _Exact, t: np.ndarray) -> np.ndarray:
     a, b, c = x[t[:, 0]], x[t[:, 1]], x[t[:, 2]]
     flat = np.ones(len(t), bool)
     for i, j in ((0, 1), (1, 2), (2, 0)):  # the three 2D orientations are the components of the normal
-        left, right = (b[:, i] - a[:, i]) * (c[:, j] - a[:, j]), (b[:, j] - a[:, j]) * (c[:, i] - a[:, i])
-        flat &= np.abs(left - right) <= _O2D_BOUND * (np.abs(left) + np.abs(right)) + _TINY
+        with np.errstate(invalid="ignore", over="ignore"):  # inf or nan: undecided
+            left, right = (b[:, i] - a[:, i]) * (c[:, j] - a[:, j]), (b[:, j] - a[:, j]) * (c[:, i] - a[:, i])
+            flat &= ~(np.abs(left - right) > _O2D_BOUND * (np.abs(left) + np.abs(right)) + _TINY)
     s = np.flatnonzero(flat)
     if len(s):
         pa, pb, pc = (exact.points(t[s, k]) for k in range(3))
