@@ -306,6 +306,19 @@ def test_overlapping_cubes_report_every_intersecting_pair(offset):
     assert [tuple(p) for p in r.intersecting_pairs.tolist()] == expected and len(expected) > 4
 
 
+def test_report_on_a_random_soup_equals_brute_force_over_all_pairs():
+    """Triangles on a few integer points: shared vertices, shared edges, coplanar and degenerate pairs
+    of every kind; the grid broad phase must lose none of them."""
+    rng = np.random.default_rng(2)
+    v = rng.integers(0, 4, (40, 3)).astype(float) * 0.25
+    f = np.array([rng.choice(40, 3, replace=False) for _ in range(250)])
+    r = mesh_report(v, f)
+    expected = brute_force_pairs(v, f)
+    np.testing.assert_array_equal(r.intersecting_pairs, expected)
+    shared = (f[expected[:, 0]][:, :, None] == f[expected[:, 1]][:, None, :]).sum(axis=(1, 2))
+    assert set(np.unique(shared)) == {0, 1, 2}  # crossings, vertex-sharing crossings and fold-overs
+
+
 def test_adjacent_pairs_meet_only_through_a_fold_or_a_crossing_away_from_the_shared_vertex():
     v = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [1, 1, 0], [1, -1, 0], [1, 1, 2.0**-60], [1, 1, 1e-300]])
     f = np.array([[0, 1, 2], [1, 0, 3], [1, 0, 4], [1, 0, 5], [1, 0, 6]])
