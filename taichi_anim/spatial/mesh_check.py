@@ -127,6 +127,7 @@ class MeshReport:
 
     @property
     def self_intersecting(self) -> bool:
+        """Some pair of triangles meets where it should not (`intersecting_pairs` is not empty)."""
         return bool(len(self.intersecting_pairs))
 
     @property
