@@ -26,7 +26,7 @@ from ..io.manifest import error_record, prepare_run_folder, write_manifest
 from ..runtime import backend_name
 from .base import Scene
 
-EXPORT_FORMATS = ("ply", "usd", "both")
+_EXPORT_FORMATS = ("ply", "usd", "both")
 
 
 def run_scene(
@@ -49,7 +49,7 @@ def run_scene(
     from tqdm import tqdm
 
     frames = validate.count("frames", frames, 1)
-    validate.choice("export_format", export_format, EXPORT_FORMATS)
+    validate.choice("export_format", export_format, _EXPORT_FORMATS)
     out = Path(out_dir)
     removed = prepare_run_folder(out, names=[scene.name])
     stepper = scene.integrator.stepper_for(scene.model)
