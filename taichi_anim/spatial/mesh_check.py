@@ -14,9 +14,9 @@ manifold, oriented mesh. Signed volume by the divergence theorem, V = (1/6) sum 
 keeps the terms small).
 
 Self-intersection, exact for any float64 input. Broad phase: the closed bounding boxes of the triangles
-binned in a uniform grid (`crossings._box_pairs`, the broad phase of `intersecting_triangle_pairs`;
-comparisons of boxes are exact, so no overlapping pair is dropped). Narrow phase, by how many vertex
-indices a pair shares:
+binned in a uniform grid (`crossings.overlapping_box_pairs`, also the broad phase of
+`intersecting_triangle_pairs`; comparisons of boxes are exact, so no overlapping pair is dropped).
+Narrow phase, by how many vertex indices a pair shares:
 - none: the closed triangles meet (touching counts: non-adjacent triangles of a valid mesh never touch);
 - one, v (triangles v a b and v c d): they meet away from v iff the closed segment ab meets the closed
   triangle v c d or segment cd meets v a b (T1 and T2 are convex and contain v, so a common point other
@@ -59,7 +59,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..validate import finite_array
-from .crossings import _box_pairs, triangles_meet
+from .crossings import overlapping_box_pairs, triangles_meet
 
 _U = 2.0**-53  # unit round-off of float64
 _AXIS_BOUND = 8 * _U
@@ -423,7 +423,7 @@ def mesh_report(vertices, triangles) -> MeshReport:
     topo = _topology(n, t)
     corners = x[t]
     lo, hi = corners.min(axis=1), corners.max(axis=1)
-    i, j = _box_pairs(lo, hi) if len(t) > 1 else (np.zeros(0, np.int64),) * 2
+    i, j = overlapping_box_pairs(lo, hi) if len(t) > 1 else (np.zeros(0, np.int64),) * 2
     hit = np.zeros(len(i), bool)
     for start in range(0, len(i), _CHUNK):
         sl = slice(start, start + _CHUNK)
