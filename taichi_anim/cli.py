@@ -1,4 +1,5 @@
-"""Command line: `taichi-anim demo [NAME] --frames N --out DIR [--arch cpu|gpu|auto] [--seed S]`.
+"""Command line: `taichi-anim demo [NAME] --frames N --out DIR [--arch cpu|gpu|auto] [--seed S]
+[--format ply|usd|both]`.
 
 Exit codes: 0 the run completed; 2 a bad parameter, or a backend or viewer that is not available here
 (argparse's own usage errors are 2 as well); 3 output could not be written (disk full, no permission,
@@ -62,6 +63,12 @@ def _parser() -> argparse.ArgumentParser:
         help="cloth demos: steps per frame, or 'auto' for the fewest within the method's stability limit",
     )
     d.add_argument("--no-export", action="store_true", help="do not write per-frame files")
+    d.add_argument(
+        "--format",
+        choices=["ply", "usd", "both"],
+        default="ply",
+        help="export: PLY files per frame, one USD stage OUT/NAME.usd, or both (default ply)",
+    )
     d.add_argument("--view", action="store_true", help="show a live GGUI window (needs a display and Vulkan)")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
@@ -146,6 +153,7 @@ def _demo(args) -> int:
         frames=args.frames or scene.frames,
         out_dir=out,
         export=not args.no_export,
+        export_format=args.format,
         progress=not args.quiet,
         viewer=viewer,
         extra_settings={"seed": args.seed, "arch_requested": args.arch, "arch_choice": runtime.arch_choice()},

@@ -266,6 +266,35 @@ class Model:
             return np.full(self.particle_count, self.uniform_mass or 0.0)
         return self.particle_mass.to_numpy().astype(np.float64)
 
+    def pinned_indices(self) -> np.ndarray:
+        """(P,) int64 indices of the pinned (kinematic) particles: those added with mass 0, and a cloth's
+        `pinned=` vertices. They keep their velocity and ignore forces and collisions; attachments move
+        them along targets, State.set_positions places them."""
+        return np.flatnonzero(self.particle_masses() == 0.0)
+
+    def spring_table(self) -> dict:
+        """The model's springs as NumPy arrays, in the model's (sorted) spring order: pairs (S,2) int64
+        particle indices (lower first), rest_length (S,) [m], stiffness (S,) [N/m], damping (S,) [N s/m],
+        family (S,) int8 (a cloth's 0 stretch (structural), 1 shear, 2 bend; 0 for add_springs). Empty
+        arrays for a model without springs."""
+        s = self.springs
+        if s is None:
+            empty = np.zeros(0)
+            return {
+                "pairs": np.zeros((0, 2), np.int64),
+                "rest_length": empty,
+                "stiffness": empty,
+                "damping": empty,
+                "family": np.zeros(0, np.int8),
+            }
+        return {
+            "pairs": s.pairs.copy(),
+            "rest_length": s.rest_length.copy(),
+            "stiffness": np.array(s.stiffness),
+            "damping": np.array(s.damping),
+            "family": s.family.copy(),
+        }
+
     def particle_radii(self, idx: np.ndarray) -> np.ndarray:
         """(N,) radii [m] of particles idx (0 for points)."""
         if self.particle_radius is None:

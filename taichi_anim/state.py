@@ -7,8 +7,9 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
-from .errors import DivergenceError
-from .runtime import data_oriented
+from . import validate
+from .errors import DivergenceError, ParameterError
+from .runtime import data_oriented, np_float
 from .watchdog import NO_INDEX, bounds_compiled
 
 ALIVE_FOREVER = 1.0e30
@@ -33,7 +34,16 @@ class ParticleSnapshot:
 @data_oriented
 class State:
     """Dynamic data of a Model: particle_x, particle_v (N,3); particle_birth/death (N,) [s] when the
-    model has emitters; trail (N,K,3) ring buffer when trails are on."""
+    model has emitters; trail (N,K,3) ring buffer when trails are on.
+
+    A State holds everything a run changes, so several states of one model (a rollback copy, a
+    parameter sweep) evolve independently: time [s] and step_count, positions and velocities, births and
+    deaths, emission (each emitter's fractional particle carried to the next step and its free-slot
+    cursor), trails, the divergence watch, and `solver_carry` (the solvers' adaptive step sizes and
+    warm starts for this run, parked here by the Stepper when it steps another State).
+
+    Read and edit it from NumPy with positions(), velocities(), set_positions(), set_velocities();
+    index i is the model's particle i (a cloth grid's vertex (i, j) is j * nx + i, in builder order)."""
 
     def __init__(self, model):
         n = model.particle_count
@@ -55,6 +65,7 @@ class State:
         self.emit_cursor = ti.field(ti.i32, k) if k else None
         self.emit_found = ti.field(ti.i32, k) if k else None
         self.emit_slot = ti.field(ti.i32, n) if k else None
+        self.solver_carry = {}  # per Stepper: its solvers' carry for this run (Stepper._switch_run)
         self.trail_length = model.trail_length
         self.trail = ti.Vector.field(3, float, (n, self.trail_length)) if self.trail_length else None
         self.trail_head = 0
@@ -77,6 +88,39 @@ class State:
         self.energy_start = None  # [J] at the first step the watchdog saw (scenes with an energy)
         self.energy_step = 0  # step of the last energy evaluation
         self.watch_reset()
+
+    def positions(self) -> np.ndarray:
+        """(N,3) float64 positions [m] of every particle slot, alive or not (snapshot() gives the alive)."""
+        return self.particle_x.to_numpy().astype(np.float64)
+
+    def velocities(self) -> np.ndarray:
+        """(N,3) float64 velocities [m/s] of every particle slot."""
+        return self.particle_v.to_numpy().astype(np.float64)
+
+    def set_positions(self, x, indices=None) -> None:
+        """Overwrite positions [m]: `x` is (N,3) for every particle, or (len(indices),3) with `indices`
+        the particles to move. Pinned particles move too (they are kinematic). The watchdog re-takes the
+        scene's energy at the next step, since an edit can add energy legitimately."""
+        self._write(self.particle_x, "x", x, indices)
+
+    def set_velocities(self, v, indices=None) -> None:
+        """Overwrite velocities [m/s], like set_positions. A pinned particle keeps the velocity it is
+        given (it moves with it, as pins keep their initial velocity)."""
+        self._write(self.particle_v, "v", v, indices)
+
+    def _write(self, field_, name: str, values, indices) -> None:
+        n = self.model.particle_count
+        values = validate.finite_array(name, values, (3,))
+        idx = np.arange(n) if indices is None else validate.index_list("indices", indices, n)
+        if len(values) != len(idx):
+            what = f"{n} particles" if indices is None else f"{len(idx)} indices"
+            raise ParameterError(f"{name} must have shape ({len(idx)}, 3) for {what}, got {values.shape}")
+        dtype = np_float()
+        validate.fits_float({name: values}, dtype)
+        full = field_.to_numpy()
+        full[idx] = values
+        field_.from_numpy(full.astype(dtype))
+        self.energy_start = None  # the watchdog's energy baseline is re-taken from the edited state
 
     def watch_reset(self) -> None:
         """Clear the divergence record (after a rollback)."""

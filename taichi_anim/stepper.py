@@ -5,6 +5,7 @@ retry) — while a method (integrators/) supplies only its update. Newton separa
 from its collision pipeline the same way."""
 
 import math
+import weakref
 
 import taichi as ti
 
@@ -58,7 +59,12 @@ class Stepper:
     recoveries for speed), and the state is saved into a backup State before each step. A rollback
     restores the State (see `State.save`); it does not undo solver-side counters and warm starts
     (adaptive step sizes, a linear solver's previous solution, self-contact statistics), which only
-    affect where the next solve starts."""
+    affect where the next solve starts.
+
+    Values a run carries from step to step belong to its State: time, step count and emission (in the
+    State itself), and the solvers' run carry (adaptive step sizes, warm starts, the recovery in force),
+    which the Stepper parks in `State.solver_carry` when another State of the model is stepped. The
+    health counters are the Stepper's: they report everything it stepped."""
 
     def __init__(self, model, integrator):
         self.model = model
@@ -85,6 +91,10 @@ class Stepper:
             self._fallback.bind(model)
             self._fallback.health = self.health
         self._recovery = None  # (method, substeps) that recovered, kept until dt changes
+        # The State whose run carry (adaptive step sizes, warm starts, the recovery in force) the solvers
+        # hold now; stepping another State parks it there first (_switch_run).
+        self._run_state = None
+        self._carry_key = object()  # this Stepper's key in State.solver_carry
         if recovering:
             # A step can store energy (a spring stretched past any stable length) before anything moves
             # fast: only the energy shows it in time to roll back, so it is evaluated every step.
@@ -106,6 +116,8 @@ class Stepper:
         model = self.model
         if state.model is not model:
             raise ParameterError("state belongs to another model: make it with this model's state()")
+        if self._run_state is None or self._run_state() is not state:
+            self._switch_run(state)
         if n > 1:
             self.advance(state, dt / n, n)
             return
@@ -146,7 +158,28 @@ class Stepper:
         else:
             if state.model is not self.model:
                 raise ParameterError("state belongs to another model: make it with this model's state()")
+            if self._run_state is None or self._run_state() is not state:
+                self._switch_run(state)
             self._frame(state, h, count, mode)
+
+    def _switch_run(self, state) -> None:
+        """Make `state` the run the solvers carry values for: park the carry of the State stepped before
+        (its adaptive step sizes, linear-solver warm starts, the recovery in force) in that State, and
+        load `state`'s (a fresh start for a State never stepped here). Two states of one model stepped
+        in turn then evolve exactly as each would alone."""
+        before = None if self._run_state is None else self._run_state()
+        if before is not None:
+            before.solver_carry[self._carry_key] = (
+                self.integrator.run_carry(),
+                None if self._fallback is None else self._fallback.run_carry(),
+                self._recovery,
+            )
+        carry = state.solver_carry.get(self._carry_key)
+        method, fallback, self._recovery = (None, None, None) if carry is None else carry
+        self.integrator.set_run_carry(method)
+        if self._fallback is not None:
+            self._fallback.set_run_carry(fallback)
+        self._run_state = weakref.ref(state)
 
     def frame_mode(self) -> dict:
         """How step(state, dt, substeps) launches a frame, and why (recorded in run.json):

@@ -2,8 +2,6 @@
 brute-force sum, one blob against the analytic sphere, closed consistently oriented meshes, merging of
 two blobs at the analytic distance, the demo's exported meshes, and bad input."""
 
-from fractions import Fraction
-
 import numpy as np
 import pytest
 import taichi as ti
@@ -11,8 +9,9 @@ import taichi as ti
 import taichi_anim as ta
 from taichi_anim.io.export import read_triangle_mesh
 from taichi_anim.scenes import make_scene
+from taichi_anim.spatial import mesh_report
 
-o3d = pytest.importorskip("open3d")
+pytest.importorskip("open3d")  # the default extractor
 
 METHODS = [m.value for m in ta.IsosurfaceMethod]
 # The default run checks the Taichi extractor's mesh topology (the cloud test); its other cases are slow
@@ -115,54 +114,12 @@ def test_one_blob_is_the_analytic_sphere(method):
 # --------------------------------------------------------------------------------------- mesh quality
 
 
-def _orient3d(a, b, c, d) -> int:
-    """Sign of det[b-a, c-a, d-a] in exact rational arithmetic."""
-    m = [[Fraction(float(q[i])) - Fraction(float(a[i])) for i in range(3)] for q in (b, c, d)]
-    det = (
-        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
-        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
-    )
-    return (det > 0) - (det < 0)
-
-
-def _segment_meets_triangle(p, q, tri) -> bool:
-    a, b, c = tri
-    s1, s2 = _orient3d(a, b, c, p), _orient3d(a, b, c, q)
-    if s1 == s2 != 0:
-        return False
-    if s1 == s2 == 0:
-        return True  # coplanar: count it as a hit (none occurs here)
-    e = [_orient3d(p, q, a, b), _orient3d(p, q, b, c), _orient3d(p, q, c, a)]
-    return all(s >= 0 for s in e) or all(s <= 0 for s in e)
-
-
-def exactly_intersecting(v, f, pairs) -> int:
-    """How many of the triangle pairs Open3D flags really intersect, decided with exact predicates."""
-    hits = 0
-    for i, j in pairs:
-        a, b = v[f[i]], v[f[j]]
-        if set(f[i]) & set(f[j]):
-            continue
-        edges = [(a[k], a[(k + 1) % 3], b) for k in range(3)] + [(b[k], b[(k + 1) % 3], a) for k in range(3)]
-        hits += any(_segment_meets_triangle(*e) for e in edges)
-    return hits
-
-
 def check_closed_and_oriented(v, f, normals, field=None) -> None:
-    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f))
-    assert mesh.is_edge_manifold(allow_boundary_edges=False)  # every edge in exactly two triangles
-    assert mesh.is_vertex_manifold() and mesh.is_orientable()
-    # Open3D's is_watertight adds a floating-point self-intersection test (Moeller's triangle test with a
-    # fixed epsilon) that flags slivers merely touching near a node; re-decide its pairs exactly.
-    pairs = np.asarray(mesh.get_self_intersecting_triangles())
-    assert exactly_intersecting(v, f, pairs) == 0
-    # Consistent orientation: each directed edge once, and its reverse once (the neighbour's).
-    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    keys = directed[:, 0].astype(np.int64) * len(v) + directed[:, 1]
-    reverse = directed[:, 1].astype(np.int64) * len(v) + directed[:, 0]
-    assert len(np.unique(keys)) == len(keys)
-    assert np.array_equal(np.sort(keys), np.sort(reverse))
+    # Closed (every edge in exactly two triangles), edge- and vertex-manifold, consistently oriented (each
+    # directed edge once), no two triangles meeting where they should not: decided exactly, so slivers
+    # merely touching near a grid node are not taken for intersections (Open3D's is_watertight does).
+    report = mesh_report(v, f)
+    assert report.ok, report.describe()
     # Outward: triangle normals agree with the field's outward normals, volume > 0. Counted by area:
     # where the grid under-resolves a thin neck a sliver's normal may turn away. Caps that the grid's
     # zero outer layer cuts (vertices within a spacing of the grid's edge) follow the cut, not the field.
@@ -175,7 +132,7 @@ def check_closed_and_oriented(v, f, normals, field=None) -> None:
         keep = inner.all(axis=1)[f].all(axis=1)
     agree = np.einsum("ij,ij->i", face, normals[f].sum(axis=1)) > 0
     assert area[keep & agree].sum() > 0.999 * area[keep].sum()
-    assert np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum() > 0
+    assert report.volume > 0
     assert np.allclose(np.linalg.norm(normals, axis=1), 1.0)
 
 
@@ -208,11 +165,7 @@ def test_two_blobs_merge_exactly_when_the_midpoint_exceeds_iso(method):
         d = factor * d_star
         bf.evaluate(np.array([[-d / 2, 0.003, 0.001], [d / 2, 0.003, 0.001]]))
         mesh = bf.isosurface(iso, method=method)
-        m = o3d.geometry.TriangleMesh(
-            o3d.utility.Vector3dVector(mesh.vertices), o3d.utility.Vector3iVector(mesh.triangles)
-        )
-        labels, _, _ = m.cluster_connected_triangles()
-        components[factor] = len(np.unique(np.asarray(labels)))
+        components[factor] = mesh_report(mesh.vertices, mesh.triangles).component_count
     assert components == {0.9: 1, 1.1: 2}
 
 

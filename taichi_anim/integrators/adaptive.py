@@ -44,7 +44,8 @@ class IntegratorAdaptive(Integrator):
         self.order = base.order
         self.stages = 3 * base.stages
         self.tol = validate.positive("tol", tol)
-        self.h = None if h_init is None else validate.positive("h_init", h_init)
+        self.h_init = None if h_init is None else validate.positive("h_init", h_init)
+        self.h = self.h_init  # the next step size proposed by the error controller (run carry)
         self.h_min = validate.positive("h_min", h_min)
         self.max_rejected = validate.count("max_rejected", max_rejected, 0)
         self.xs = self.vs = None
@@ -61,6 +62,13 @@ class IntegratorAdaptive(Integrator):
             "accepted": self.accepted,
             "rejected": self.rejected,
         }
+
+    def run_carry(self) -> dict:
+        return {"h": self.h, "base": self.base.run_carry()}
+
+    def set_run_carry(self, carry: dict | None) -> None:
+        self.h = self.h_init if carry is None else carry["h"]
+        self.base.set_run_carry(None if carry is None else carry["base"])
 
     def _allocate(self, model) -> None:
         self.base.bind(model)

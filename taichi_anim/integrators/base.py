@@ -73,6 +73,15 @@ class Integrator:
     def _allocate(self, model) -> None:
         """Subclasses allocate their own fields here."""
 
+    def run_carry(self) -> dict:
+        """Values this method carries from one step of a run to the next (an adaptive method's next step
+        size, a linear solver's warm start). The Stepper parks them in the State they belong to when it
+        switches to another State, so states of one model stepped in turn evolve independently."""
+        return {}
+
+    def set_run_carry(self, carry: dict | None) -> None:
+        """Load values saved by run_carry, or start afresh (None: a State this method never stepped)."""
+
     def step(self, model, state, dt: float, substeps: int = 1) -> None:
         """Advance `state` of `model` by dt [s] in place, in `substeps` equal steps (a Stepper bound to
         the model, made once; Stepper.step says how a frame of substeps is launched)."""

@@ -124,6 +124,18 @@ class IntegratorImplicitEuler(Integrator):
                 self.vt = ti.Vector.field(3, float, n)
                 self.mass_root = math.sqrt(float(np.sum(model.particle_masses())))
 
+    def run_carry(self) -> dict:
+        # The last solve's velocity change: where the next solve starts (warm_start).
+        return {} if self.system is None else {"warm": self.system.solution.to_numpy()}
+
+    def set_run_carry(self, carry: dict | None) -> None:
+        if self.system is None:
+            return
+        if carry is None:
+            self.system.solution.fill(0.0)
+        else:
+            self.system.solution.from_numpy(carry["warm"])
+
     def advance(self, model, state, xi, vi, xo, vo, ta, t, h, step, finish) -> None:
         self._step = step  # for the reports of prepare()
         super().advance(model, state, xi, vi, xo, vo, ta, t, h, step, finish)

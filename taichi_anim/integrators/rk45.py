@@ -65,7 +65,8 @@ class IntegratorRK45(IntegratorRungeKutta):
         self.adaptive = bool(adaptive)
         self.rtol = validate.non_negative("rtol", rtol)
         self.atol = validate.positive("atol", atol)
-        self.h = None if h_init is None else validate.positive("h_init", h_init)
+        self.h_init = None if h_init is None else validate.positive("h_init", h_init)
+        self.h = self.h_init  # the next step size proposed by the error controller (run carry)
         self.h_min = validate.positive("h_min", h_min)
         self.max_rejected = validate.count("max_rejected", max_rejected, 0)
         self.xs = self.vs = None
@@ -120,6 +121,12 @@ class IntegratorRK45(IntegratorRungeKutta):
         self.h = h_next
         self._tally(accepted, rejected)
         self._finish_all(model, state, xs[0], vs[0], ta, dt, step)
+
+    def run_carry(self) -> dict:
+        return {"h": self.h}
+
+    def set_run_carry(self, carry: dict | None) -> None:
+        self.h = self.h_init if carry is None else carry["h"]
 
     def _tally(self, accepted: int, rejected: int) -> None:
         self.accepted += accepted

@@ -1,5 +1,6 @@
 """Output that never feeds back into the simulation: Open3D export (each file published atomically and
-verified complete), reading it back, run manifests and the output-folder policy."""
+verified complete), reading it back, one USD stage per run (usd.py), run manifests and the output-folder
+policy."""
 
 from .atomic import atomic_path, file_record, recording_files, remove_stale_temporaries
 from .export import (
@@ -23,8 +24,10 @@ from .manifest import (
     read_manifest,
     write_manifest,
 )
+from .usd import UsdStageWriter, write_usd
 
 __all__ = [
+    "UsdStageWriter",
     "area_weighted_normals",
     "atomic_path",
     "check_output_folder",
@@ -46,4 +49,5 @@ __all__ = [
     "write_manifest",
     "write_point_cloud",
     "write_triangle_mesh",
+    "write_usd",
 ]

@@ -197,8 +197,10 @@ def remove_file(entry: Path) -> bool:
 def incomplete_reason(path: Path) -> str | None:
     """Why the file at `path` is not complete by its own description, or None if it is (or its format
     has no such description). PLY and PCD: data size against the header; PNG: the closing IEND chunk;
-    JSON: it parses."""
+    JSON: it parses; USD: usd_problem."""
     ext = path.suffix.lower()
+    if ext in (".usd", ".usdc", ".usda"):
+        return usd_problem(path)
     if ext == ".ply":
         return ply_problem(path)
     if ext == ".pcd":
@@ -213,6 +215,33 @@ def incomplete_reason(path: Path) -> str | None:
             json.loads(path.read_bytes())
         except ValueError as e:
             return f"the JSON does not parse: {e}"
+    return None
+
+
+def usd_problem(path: Path) -> str | None:
+    """Why a USD layer is not complete, or None: it must open (a crate file cut short loses its table of
+    contents, a text file its closing brackets); a stage written by io/usd.py also records its frame and
+    prim counts (customLayerData "taichi_anim"), checked against its time samples, endTimeCode and prims."""
+    from pxr import Sdf, Tf
+
+    try:
+        layer = Sdf.Layer.OpenAsAnonymous(str(path))
+    except Tf.ErrorException as e:
+        return f"the USD layer does not open: {' '.join(str(e).split())[:200]}"
+    if layer is None:
+        return "the USD layer does not open"
+    expected = layer.customLayerData.get("taichi_anim")
+    if not isinstance(expected, dict):
+        return None
+    samples = layer.ListAllTimeSamples()
+    if len(samples) != expected.get("frames", len(samples)):
+        return f"{expected['frames']} frames announced, {len(samples)} time codes written"
+    if samples and layer.HasEndTimeCode() and max(samples) != layer.endTimeCode:
+        return f"its last time sample is {max(samples)}, its endTimeCode {layer.endTimeCode}"
+    prims = []
+    layer.Traverse(Sdf.Path.absoluteRootPath, lambda p: prims.append(p) if p.IsPrimPath() else None)
+    if len(prims) != expected.get("prims", len(prims)):
+        return f"{expected['prims']} prims announced, {len(prims)} written"
     return None
 
 

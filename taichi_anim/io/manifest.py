@@ -4,7 +4,8 @@ software/hardware environment of a run, and the rule that keeps an output folder
 Folder policy: a run owns its output folder, and re-running into the same folder replaces the previous
 run's output, as a simulation cache does in Blender or Houdini. When a run starts (prepare_run_folder) it
 removes what the previous run wrote there: every file its run.json lists, plus the frame files named
-after the previous and the current scene (`NAME_0042.ply`, `NAME_trails_0042.ply`, `NAME_last.png`, ...:
+after the previous and the current scene (`NAME_0042.ply`, `NAME_trails_0042.ply`, `NAME_last.png`,
+`NAME.usd`, ...:
 a run killed before its final run.json listed nothing) and the hidden temporaries killed runs leave.
 Other files (a user's notes, other scenes' caches) are never touched. A fresh folder per run would keep
 old runs, but then every consumer (a Blender import, a viewer) must be pointed at a new folder each
@@ -222,10 +223,10 @@ def error_record(error: BaseException) -> dict:
 
 def frame_file_pattern(name: str) -> re.Pattern:
     """The names a scene `name` writes: `name_NNNN.ext` and `name_word_NNNN.ext` (4 or more digits,
-    ext in FRAME_EXTENSIONS) and the picture `name_last.png`."""
+    ext in FRAME_EXTENSIONS), the picture `name_last.png` and the USD stage `name.usd`."""
     stem = re.escape(name)
     ext = "|".join(FRAME_EXTENSIONS)
-    return re.compile(rf"{stem}(?:_[a-z]+)?_\d{{4,}}\.(?:{ext})|{stem}_last\.png")
+    return re.compile(rf"{stem}(?:_[a-z]+)?_\d{{4,}}\.(?:{ext})|{stem}_last\.png|{stem}\.usd")
 
 
 def check_output_folder(out_dir: str | os.PathLike) -> Path:

@@ -120,12 +120,16 @@ class Scene:
             items.append(Mesh("", vertices, triangles, normals, tuple(CLOTH_FRONT), role="cloth"))
             keep = ~np.isin(snap.index, particle)
         if mesh is None or keep.any():
+            index = snap.index[keep]
+            # particles given a radius are balls of that radius in every output; points have none
+            radii = self.model.particle_radii(index) if self.model.max_radius > 0 else None
             items.append(
                 Points(
                     "" if mesh is None else "particles",
                     snap.x[keep],
                     snap.color[keep],
-                    snap.index[keep],
+                    index,
+                    radii,
                     attributes={"velocity": snap.v[keep], "age": snap.age[keep]},
                 )
             )

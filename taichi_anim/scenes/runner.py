@@ -11,6 +11,7 @@ recorded in run.json) timed with `ti.sync()` before every clock read; the first 
 compilation, reported as compile_s = first frame minus a steady (median) frame; ms_per_step is a steady
 frame over its substeps; export and render time are kept apart."""
 
+import contextlib
 import time
 from pathlib import Path
 
@@ -25,6 +26,8 @@ from ..io.manifest import error_record, prepare_run_folder, write_manifest
 from ..runtime import backend_name
 from .base import Scene
 
+_EXPORT_FORMATS = ("ply", "usd", "both")
+
 
 def run_scene(
     scene: Scene,
@@ -35,24 +38,31 @@ def run_scene(
     progress: bool = True,
     viewer=None,
     extra_settings: dict | None = None,
+    export_format: str = "ply",
 ) -> dict:
     """Simulate `frames` frames of `scene`; return the summary (also written to out_dir/run.json).
+
+    export_format: "ply" (a file per item and frame), "usd" (one stage, out_dir/<scene>.usd, saved at
+    the end: io/usd.py) or "both"; with export=False nothing is written.
 
     Raises what stopped the run (DivergenceError, OutputError, ...) after recording it in run.json."""
     from tqdm import tqdm
 
     frames = validate.count("frames", frames, 1)
+    validate.choice("export_format", export_format, _EXPORT_FORMATS)
     out = Path(out_dir)
     removed = prepare_run_folder(out, names=[scene.name])
     stepper = scene.integrator.stepper_for(scene.model)
-    settings = {**scene.settings(), "frames": frames, "export": export, **(extra_settings or {})}
+    settings = {**scene.settings(), "frames": frames, "export": export, "export_format": export_format}
+    settings.update(extra_settings or {})
     write_manifest(out, settings, {}, status="running", health=stepper.health.to_dict())
     run = {"frame_times": [], "first_frame_s": None, "export_s": 0.0, "render_s": 0.0, "frames_done": 0}
     files: list[dict] = []  # what the run published, in order (see recording_files)
     status, failure = "failed", None
     try:
         with recording_files(out) as files:
-            _simulate(scene, stepper, frames, out, export, progress, viewer, run, tqdm)
+            formats = () if not export else ("ply", "usd") if export_format == "both" else (export_format,)
+            _simulate(scene, stepper, frames, out, formats, progress, viewer, run, tqdm)
         status = "complete"
     except DivergenceError as e:
         status, failure = "diverged", e
@@ -85,11 +95,28 @@ def run_scene(
     return summary
 
 
-def _simulate(scene, stepper, frames, out, export, progress, viewer, run, tqdm) -> None:
+def _usd_stage(scene, out, formats):
+    """The run's UsdStageWriter (out/<scene>.usd), or a null context without USD export."""
+    if "usd" not in formats:
+        return contextlib.nullcontext()
+    from ..io.usd import UsdStageWriter
+
+    return UsdStageWriter(
+        out / f"{scene.name}.usd",
+        fps=1.0 / scene.frame_dt,
+        name=scene.name,
+        point_radius=scene.point_radius,
+        colliders=scene.model.colliders,
+        bounds=scene.bounds,
+    )
+
+
+def _simulate(scene, stepper, frames, out, formats, progress, viewer, run, tqdm) -> None:
     state = scene.state
     bar = tqdm(range(frames), desc=scene.name, unit="frame", disable=not progress, leave=False)
     try:
-        with frame_numbering(frames):
+        # A stage is saved when the block ends, also when a frame diverges: with the frames before it.
+        with frame_numbering(frames), _usd_stage(scene, out, formats) as stage:
             for frame in bar:
                 ti.sync()
                 t0 = time.perf_counter()
@@ -103,15 +130,22 @@ def _simulate(scene, stepper, frames, out, export, progress, viewer, run, tqdm) 
                 # The watch may be read only every check_every steps: read it now, so a frame after a
                 # diverged step is never written.
                 stepper.check(state, energy=True)
-                if export:
+                if formats:
                     t0 = time.perf_counter()
-                    scene.export_frame(out, frame)
+                    if "ply" in formats:
+                        scene.export_frame(out, frame)
+                    if stage is not None:
+                        stage.add_frame(scene.frame_content(), time=state.time)
                     run["export_s"] += time.perf_counter() - t0
                 run["frames_done"] = frame + 1
                 if viewer is not None:
                     snap = state.snapshot()
                     if not viewer.draw(snap.x, snap.color, scene.point_radius):
                         break
+            if stage is not None:
+                t0 = time.perf_counter()
+                stage.save()
+                run["export_s"] += time.perf_counter() - t0
     finally:
         bar.close()
     t0 = time.perf_counter()

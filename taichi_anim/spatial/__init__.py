@@ -39,6 +39,7 @@ from .intersect import (
     triangle_triangle_intersect,
 )
 from .lbvh import BVH, morton3
+from .mesh_check import MeshReport, mesh_report, triangle_pairs_intersect
 from .mesh_query import (
     TriangleMesh,
     check_mesh,
@@ -59,6 +60,9 @@ __all__ = [
     "Separation",
     "intersecting_triangle_pairs",
     "min_separation",
+    "MeshReport",
+    "mesh_report",
+    "triangle_pairs_intersect",
     "TriangleMesh",
     "check_mesh",
     "triangle_box_overlap",
