@@ -103,6 +103,7 @@ class BlobField:
         self._Grad = ti.types.struct(p=ti.types.vector(3, float), g=ti.types.vector(3, float))
 
     def describe(self) -> str:
+        """One line for summaries: grid nodes, spacing [m], sigma [m], cutoff and truncation bound."""
         d = "x".join(map(str, self.dims))
         return (
             f"blob field on {d} nodes, spacing {self.spacing:.4g} m, sigma {self.sigma:.4g} m, cutoff "
@@ -111,6 +112,7 @@ class BlobField:
         )
 
     def settings(self) -> dict:
+        """The field's settings for run.json."""
         return {
             "sigma": self.sigma,
             "cutoff": self.cutoff,
@@ -142,10 +144,12 @@ class BlobField:
 
     @ti.func
     def node_position(self, i, j, k):
+        """Position [m] of grid node (i, j, k)."""
         return ti.Vector(self.lo, dt=float) + self.spacing * ti.Vector([i, j, k], dt=float)
 
     @ti.func
     def block_coords(self, b):
+        """Integer coordinates of block b among the blocks (z fastest)."""
         bz = b % self.block_dims[2]
         by = (b // self.block_dims[2]) % self.block_dims[1]
         return ti.Vector([b // (self.block_dims[2] * self.block_dims[1]), by, bz])
@@ -158,11 +162,13 @@ class BlobField:
 
     @ti.func
     def block_of(self, node):
+        """Index of the block holding grid node `node` (integer coordinates)."""
         c = node // BLOCK
         return (c[0] * self.block_dims[1] + c[1]) * self.block_dims[2] + c[2]
 
     @ti.func
     def inside_grid(self, node):
+        """Whether the integer node coordinates lie in the grid."""
         return (node >= 0).all() and (node < ti.Vector(self.dims)).all()
 
     @ti.func

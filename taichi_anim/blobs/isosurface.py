@@ -54,6 +54,7 @@ class BlobMesh:
 
     @property
     def triangle_count(self) -> int:
+        """Number of triangles F."""
         return len(self.triangles)
 
     def write(self, path, vertex_colors=None):

@@ -138,6 +138,7 @@ class RigidMotion:
         return cls(t, np.array(ts), np.array(rs))
 
     def settings(self) -> dict:
+        """The motion's keyframes for run.json."""
         return {"keyframes": self.count, "start": float(self.times[0]), "end": float(self.times[-1])}
 
     # -- Python-side evaluation (tests, drawing) -----------------------------------------------------------

@@ -58,9 +58,11 @@ class _NeighborSearch:
         self._no_death = ti.field(float, 1)
 
     def describe(self) -> str:
+        """One line for summaries: the method and its capacity."""
         return f"{self.method.value} (capacity {self.capacity})"
 
     def settings(self) -> dict:
+        """The structure's settings for run.json: method, radius [m], capacity."""
         return {"method": self.method.value, "radius": self.radius, "capacity": self.capacity}
 
     def build(self, x, count: int | None = None, death=None, t: float = 0.0) -> None:
@@ -75,10 +77,15 @@ class _NeighborSearch:
 
     @ti.func
     def for_each_neighbor(self, i, p, radius, visit: ti.template(), ret: ti.template()):
+        """From Taichi scope: call visit(i, k, ret) for every slot k whose build-time position sorted_x[k]
+        lies strictly within `radius` [m] of p (|d| < radius <= self.radius); the particle is sorted_id[k],
+        `i` is passed through and `ret` is the caller's accumulator (by reference)."""
         self._cells(i, p, radius * radius, True, visit, ret)
 
     @ti.func
     def for_each_candidate(self, i, p, visit: ti.template(), ret: ti.template()):
+        """From Taichi scope: call visit(i, k, ret) for every slot k of the 3x3x3 cells around p (all slots
+        for brute force), a superset of those within self.radius; the caller tests distances."""
         self._cells(i, p, 0.0, False, visit, ret)
 
     @ti.func
@@ -162,12 +169,14 @@ class NeighborGrid(_NeighborSearch):
         self._scan = PrefixSum(c, self._serial)
 
     def describe(self) -> str:
+        """One line for summaries: cells (or hash buckets) and the cell size [m]."""
         if self.hashed:
             return f"hash_grid ({self.cell_count} buckets, cell {self.cell_size:.4g} m)"
         d = "x".join(str(n) for n in self.dims)
         return f"grid ({d} cells of {self.cell_size:.4g} m)"
 
     def settings(self) -> dict:
+        """The grid's settings for run.json: method, radius, capacity, cell size [m], cells, dims, lo [m]."""
         out = super().settings()
         out.update(cell_size=self.cell_size, cells=self.cell_count, dims=self.dims, lo=self.lo)
         return out

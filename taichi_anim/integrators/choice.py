@@ -55,6 +55,7 @@ class Choice:
     integrator: object = field(default=None, repr=False, compare=False)  # made while testing accuracy
 
     def record(self) -> dict:
+        """The choice for run.json: name, substeps, reason, omega [rad/s] and each candidate's cost."""
         return {
             "chosen": self.name,
             "substeps": self.substeps,

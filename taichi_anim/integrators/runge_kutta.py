@@ -115,6 +115,8 @@ class IntegratorRungeKutta(Integrator):
 
     @ti.func
     def update(self, model: ti.template(), i, x0, v0, t, h):
+        """(x1 [m], v1 [m/s]) of particle i after a step h [s] from (x0, v0) at t [s]: the last stage and the
+        tableau's weighted sum of the stages."""
         last = ti.static(self.stages - 1)
         tl = t + self.tableau.c[last] * h
         kx_last = v0

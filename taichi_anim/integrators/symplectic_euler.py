@@ -19,5 +19,6 @@ class IntegratorSymplecticEuler(Integrator):
 
     @ti.func
     def update(self, model: ti.template(), i, x0, v0, t, h):
+        """(x1 [m], v1 [m/s]) of particle i after a step h [s]: v1 = v0 + h a(x0, v0, t), x1 = x0 + h v1."""
         v1 = v0 + h * model.accel_total(self.caches, i, x0, v0, t)
         return x0 + h * v1, v1

@@ -68,6 +68,7 @@ class LinearSolver:
         self.solves = 0
 
     def settings(self) -> dict:
+        """The solver's settings for run.json."""
         return {
             "linear_solver": self.name,
             "tol": self.tol,
@@ -148,6 +149,8 @@ class LinearSolver:
 
     @ti.func
     def store(self, slot: ti.template(), blk, s):
+        """Add block blk's partial sum s to slot `slot`: kept per block on the CPU (summed later in block
+        order), an atomic add on GPUs."""
         if ti.static(self.blocked):
             self.partial[slot, blk] = s
         else:
@@ -155,6 +158,8 @@ class LinearSolver:
 
     @ti.func
     def total(self, slot: ti.template()):
+        """The sum in slot `slot`: the per-block partial sums added in block order on the CPU (the same on any
+        thread count), the atomic sum on GPUs."""
         acc = ti.Vector.zero(float, 3)
         if ti.static(self.blocked):
             for b in range(self.block_count):  # inside a parallel loop body: serial, fixed order
@@ -172,6 +177,8 @@ class LinearSolver:
 
     @ti.func
     def converged(self, rr, bb, tol, floor):
+        """Whether rr <= max(tol^2 bb, floor): the squared residual norm against the squared right-hand side
+        norm bb and an absolute floor."""
         return rr <= ti.max(tol * tol * bb, floor)
 
     @ti.func

@@ -174,6 +174,7 @@ class BVH:
         return q / b if b > 0.0 else (1.0 if q <= 0.0 else float("inf"))
 
     def describe(self) -> str:
+        """One line for summaries: the method and the boxes held."""
         return f"lbvh ({self.n} of {self.capacity} boxes)"
 
     # ---------------------------------------------------------------------------------------------

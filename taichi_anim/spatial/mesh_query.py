@@ -249,6 +249,7 @@ class TriangleMesh:
 
     @ti.func
     def bound_closest(self, ret: ti.template()):
+        """The pruning bound of a closest-point search: the squared distance [m^2] of the best face so far."""
         return ret.dist2
 
     @ti.func

@@ -94,6 +94,7 @@ class Octree:
         return True
 
     def describe(self) -> str:
+        """One line for summaries: the method and the boxes held."""
         return f"octree ({self.n} of {self.capacity} boxes)"
 
     @ti.kernel

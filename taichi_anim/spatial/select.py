@@ -66,9 +66,11 @@ class BruteBoxes:
         """Nothing to do: queries read prim_lo/prim_hi directly."""
 
     def update(self) -> bool:
+        """Nothing to refit for brute force: returns False (no rebuild)."""
         return False
 
     def describe(self) -> str:
+        """One line for summaries: the method and the boxes held."""
         return f"brute ({self.n} of {self.capacity} boxes)"
 
     @ti.func

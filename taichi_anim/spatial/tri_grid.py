@@ -15,4 +15,5 @@ class TriGrid(Octree):
     single_level = True
 
     def describe(self) -> str:
+        """One line for summaries: the method and the boxes held."""
         return f"grid ({self.n} of {self.capacity} boxes)"

@@ -74,6 +74,7 @@ class AeroTriangles(ElementTerm):
         super().__init__(particle_count, tris)
 
     def settings(self) -> dict:
+        """The term's settings for run.json."""
         return {
             "type": "aero_triangles",
             "count": self.count,
@@ -119,11 +120,15 @@ class AeroTriangles(ElementTerm):
 
     @ti.func
     def element_force(self, e, X, V, t):
+        """Drag and lift [N] on the three vertices of triangle e, stacked (9,), at positions X [m] and
+        velocities V [m/s]."""
         f, _, _, _ = self.panel(X, V, t)
         return self.spread(f)
 
     @ti.func
     def element_linear(self, e, X, V, t, h):
+        """(F [N], S [kg], df/dx v [N/s]) of triangle e for step h [s]: the normal drag's velocity Jacobian as
+        damping, the rest explicit."""
         f, n, q, un = self.panel(X, V, t)
         # S_ab = h (rho C_d A |u_n| / 9) n n^T for every pair (a, b); rho A = 2 q.
         blk = (h * 2.0 * q * self.drag_coefficient * ti.abs(un) / 9.0) * n.outer_product(n)
@@ -137,4 +142,5 @@ class AeroTriangles(ElementTerm):
 
     @ti.func
     def element_energy(self, e, X):
+        """0: aerodynamic forces have no potential."""
         return 0.0

@@ -38,6 +38,7 @@ class AnchorSpring(PointTerm):
         self.count = len(springs)
 
     def settings(self) -> dict:
+        """The term's settings for run.json: type and spring count."""
         return {"type": "anchor_spring", "count": self.count}
 
     @ti.func
@@ -49,12 +50,16 @@ class AnchorSpring(PointTerm):
 
     @ti.func
     def force(self, i, m, x, v, t):
+        """-k (|d| - L0) n - c (v . n) n [N] on particle i at x [m], v [m/s], d = x - anchor, n = d / |d|
+        (parameters 0 for a particle without an anchor)."""
         p = self.params[i]
         length, n = self._frame(i, x)
         return -p[0] * (length - p[1]) * n - p[2] * v.dot(n) * n
 
     @ti.func
     def jacobian(self, i, m, x, v, t):
+        """(df/dx [N/m], df/dv [kg/s]) of particle i's anchor spring (3x3 each), the transverse part clamped
+        at 0 when compressed."""
         p = self.params[i]
         length, n = self._frame(i, x)
         nn = n.outer_product(n)

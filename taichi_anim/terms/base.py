@@ -37,9 +37,11 @@ class PointTerm:
     has_energy = False
 
     def make_cache(self, particle_count: int, implicit: bool):
+        """None: a pointwise term keeps no per-solver scratch."""
         return None
 
     def energy(self, x, masses) -> float:
+        """Energy [J] at positions x (N,3) [m] with masses (N,) [kg]; 0 for a term without a potential."""
         return 0.0
 
 
@@ -101,12 +103,15 @@ class ElementTerm:
         self._energy_fields = None
 
     def make_cache(self, particle_count: int, implicit: bool) -> ElementCache:
+        """This term's scratch for one solver: an ElementCache (with the implicit blocks if `implicit`)."""
         return ElementCache(self.count, self.arity, implicit)
 
     # ---- element gathers: stacked element state from fields
 
     @ti.func
     def stack(self, e, xf: ti.template()):
+        """The positions (or velocities) of element e's particles from the Vector field xf, stacked in one
+        vector of 3 * arity entries."""
         ids = self.element_vertex[e]
         out = ti.Vector.zero(float, 3 * self.arity)
         for a in ti.static(range(self.arity)):
@@ -119,6 +124,8 @@ class ElementTerm:
 
     @ti.func
     def evaluate(self, cache: ti.template(), xf: ti.template(), vf: ti.template(), t, serial: ti.template()):
+        """A loop over elements: each element's forces [N] at fields (xf [m], vf [m/s]) at time t [s] into
+        cache.f."""
         ti.loop_config(serialize=serial)
         for e in range(self.count):
             F = self.element_force(e, self.stack(e, xf), self.stack(e, vf), t)
@@ -127,6 +134,7 @@ class ElementTerm:
 
     @ti.func
     def gather(self, cache: ti.template(), i):
+        """The force [N] on particle i from the last `evaluate`, summed over its elements in a fixed order."""
         f = ti.Vector.zero(float, 3)
         for k in range(self.adj_start[i], self.adj_start[i + 1]):
             q = self.adj_entry[k]
@@ -137,6 +145,8 @@ class ElementTerm:
     def linearize(
         self, cache: ti.template(), xf: ti.template(), vf: ti.template(), t, h, serial: ti.template()
     ):
+        """A loop over elements: forces [N], df/dx v [N/s] and the blocks S = -(h df/dv + h^2 df/dx) [kg] into
+        the cache, for step h [s]."""
         ti.loop_config(serialize=serial)
         for e in range(self.count):
             F, S, KV = self.element_linear(e, self.stack(e, xf), self.stack(e, vf), t, h)
@@ -152,6 +162,8 @@ class ElementTerm:
 
     @ti.func
     def gather_linear(self, cache: ti.template(), i):
+        """After `linearize`: (f [N], df/dx v [N/s], S_ii [kg]) of particle i, for the right-hand side and the
+        block-Jacobi preconditioner."""
         f = ti.Vector.zero(float, 3)
         kxv = ti.Vector.zero(float, 3)
         diag = ti.Matrix.zero(float, 3, 3)
@@ -170,6 +182,7 @@ class ElementTerm:
 
     @ti.func
     def apply(self, cache: ti.template(), i, pf: ti.template()):
+        """Row i of S p for the Vector field pf (matrix-free products in CG and Jacobi)."""
         acc = ti.Vector.zero(float, 3)
         for k in range(self.adj_start[i], self.adj_start[i + 1]):
             q = self.adj_entry[k]

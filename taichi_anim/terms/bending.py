@@ -170,6 +170,7 @@ class BendingDihedral(ElementTerm):
         return cls(particle_count, mesh_hinges(triangles), rest_positions, **kw)
 
     def settings(self) -> dict:
+        """The term's settings for run.json."""
         return {
             "type": "bending_dihedral",
             "count": self.count,
@@ -193,16 +194,19 @@ class BendingDihedral(ElementTerm):
 
     @ti.func
     def element_energy(self, e, X):
+        """Bending energy [J] of hinge e at stacked positions X (12,) [m]."""
         d, _g, p = self.excess(e, X)
         return 0.5 * p[1] * d * d
 
     @ti.func
     def element_force(self, e, X, V, t):
+        """Bending and damping forces [N] on the four vertices of hinge e, stacked (12,)."""
         d, g, p = self.excess(e, X)
         return -p[1] * (d + p[2] * g.dot(V)) * g
 
     @ti.func
     def element_linear(self, e, X, V, t, h):
+        """(F [N], S [kg], df/dx v [N/s]) of hinge e for step h [s] (Gauss-Newton part, rank one)."""
         d, g, p = self.excess(e, X)
         gv = g.dot(V)
         f = -p[1] * (d + p[2] * gv) * g
@@ -213,12 +217,15 @@ class BendingDihedral(ElementTerm):
     # (4 vectors per hinge instead of 16 3x3 blocks: a quarter of the memory, and S p in 8 dot products)
 
     def make_cache(self, particle_count: int, implicit: bool) -> "HingeCache":
+        """This term's scratch for one solver: per-hinge forces and, if `implicit`, one gradient vector per
+        vertex."""
         return HingeCache(self.count, implicit)
 
     @ti.func
     def linearize(
         self, cache: ti.template(), xf: ti.template(), vf: ti.template(), t, h, serial: ti.template()
     ):
+        """A loop over hinges: forces [N] and the rank-one linearisation for step h [s] into the cache."""
         ti.loop_config(serialize=serial)
         for e in range(self.count):
             X = self.stack(e, xf)
@@ -239,6 +246,7 @@ class BendingDihedral(ElementTerm):
 
     @ti.func
     def apply(self, cache: ti.template(), i, pf: ti.template()):
+        """Row i of S p for the Vector field pf, from the rank-one blocks."""
         acc = ti.Vector.zero(float, 3)
         for k in range(self.adj_start[i], self.adj_start[i + 1]):
             q = self.adj_entry[k]

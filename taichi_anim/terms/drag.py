@@ -16,12 +16,15 @@ class Drag(PointTerm):
         self.wind = tuple(float(c) for c in wind)
 
     def settings(self) -> dict:
+        """The term's settings for run.json: type (drag or wind), k [kg/s], wind [m/s]."""
         return {"type": "wind" if any(self.wind) else "drag", "k": self.k, "wind": self.wind}
 
     @ti.func
     def force(self, i, m, x, v, t):
+        """k (wind - v) [N] on particle i at velocity v [m/s]."""
         return self.k * (ti.Vector(self.wind, dt=float) - v)
 
     @ti.func
     def jacobian(self, i, m, x, v, t):
+        """(df/dx, df/dv) = (0, -k I) (3x3 each)."""
         return ti.Matrix.zero(float, 3, 3), -self.k * ti.Matrix.identity(float, 3)

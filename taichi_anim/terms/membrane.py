@@ -154,6 +154,7 @@ class MembraneStVK(ElementTerm):
         self.area.from_numpy(area.astype(np_float()))
 
     def settings(self) -> dict:
+        """The term's settings for run.json."""
         return {"type": "membrane_stvk", "count": self.count, **self.moduli, "damping": self.beta}
 
     # ---- element functions (per triangle; X, V stacked 9-vectors)
@@ -201,11 +202,13 @@ class MembraneStVK(ElementTerm):
 
     @ti.func
     def element_energy(self, e, X):
+        """StVK strain energy [J] of triangle e at stacked positions X (9,) [m]."""
         _D, _F, _S, _Sg, strain, s = self.kinematics(e, X)
         return 0.5 * self.area[e] * strain.dot(s)
 
     @ti.func
     def element_force(self, e, X, V, t):
+        """Elastic and Rayleigh damping forces [N] on the vertices of triangle e, stacked (9,)."""
         D, F, S, Sg, _strain, _s = self.kinematics(e, X)
         Q = F @ S  # first Piola stress P
         if ti.static(self.beta > 0.0):  # compile time: undamped membranes skip it
@@ -216,6 +219,8 @@ class MembraneStVK(ElementTerm):
 
     @ti.func
     def element_linear(self, e, X, V, t, h):
+        """(F [N], S [kg], df/dx v [N/s]) of triangle e for step h [s], with the compressive stress clamped so
+        S stays positive semi-definite."""
         D, F, _S, Sg, _strain, s = self.kinematics(e, X)
         C = ti.Matrix(self.c_rows)
         # B (3x9): d(strain) = B dX; the material part is B^T C B, the force -A0 B^T s.

@@ -114,11 +114,14 @@ class Springs:
         self.spring_param.from_numpy(param.astype(f))
 
     def settings(self) -> dict:
+        """The term's settings for run.json."""
         names = ("stretch", "shear", "bend")
         fam = {names[k]: int((self.family == k).sum()) for k in range(3) if (self.family == k).any()}
         return {"type": "springs", "count": self.count, "families": fam}
 
     def make_cache(self, particle_count: int, implicit: bool) -> SpringCache:
+        """This term's scratch for one solver: per-spring forces (and the compact linearisation if
+        `implicit`)."""
         return SpringCache(self.count, implicit)
 
     def energy(self, x, masses=None) -> float:
