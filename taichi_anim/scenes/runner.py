@@ -9,8 +9,14 @@ bad step is written.
 Timings: a frame's substeps run as one call (Stepper.advance, launched as Stepper.frame_mode says,
 recorded in run.json) timed with `ti.sync()` before every clock read; the first frame includes JIT
 compilation, reported as compile_s = first frame minus a steady (median) frame; ms_per_step is a steady
-frame over its substeps; export and render time are kept apart."""
+frame over its substeps; export and render time are kept apart.
 
+Video (`video=PATH`): each frame is rendered (Scene.render_frame) after it is exported and appended to
+an MP4 or GIF at the demo's frame rate, 1 / scene.frame_dt (render/video.py), published when the run
+completes; run.json's "video" records its path, fps, frames, size and the milliseconds per rendered
+frame (rendering and encoding)."""
+
+import contextlib
 import time
 from pathlib import Path
 
@@ -35,8 +41,13 @@ def run_scene(
     progress: bool = True,
     viewer=None,
     extra_settings: dict | None = None,
+    video=None,
+    color_by: str | None = None,
 ) -> dict:
     """Simulate `frames` frames of `scene`; return the summary (also written to out_dir/run.json).
+
+    video: None, or the path of an MP4 or GIF of the run; color_by: what the pictures colour points
+    by ("speed", "height", "age", "none"; None: the scene's default).
 
     Raises what stopped the run (DivergenceError, OutputError, ...) after recording it in run.json."""
     from tqdm import tqdm
@@ -48,6 +59,7 @@ def run_scene(
     settings = {**scene.settings(), "frames": frames, "export": export, **(extra_settings or {})}
     write_manifest(out, settings, {}, status="running", health=stepper.health.to_dict())
     run = {"frame_times": [], "first_frame_s": None, "export_s": 0.0, "render_s": 0.0, "frames_done": 0}
+    run.update(video_path=video, color_by=color_by, video_s=0.0, video=None)
     files: list[dict] = []  # what the run published, in order (see recording_files)
     status, failure = "failed", None
     try:
@@ -86,10 +98,14 @@ def run_scene(
 
 
 def _simulate(scene, stepper, frames, out, export, progress, viewer, run, tqdm) -> None:
+    from ..render import VideoWriter
+
     state = scene.state
-    bar = tqdm(range(frames), desc=scene.name, unit="frame", disable=not progress, leave=False)
+    desc = scene.name if run["video_path"] is None else f"{scene.name} (+video)"
+    bar = tqdm(range(frames), desc=desc, unit="frame", disable=not progress, leave=False)
+    video = None if run["video_path"] is None else VideoWriter(run["video_path"], fps=1.0 / scene.frame_dt)
     try:
-        with frame_numbering(frames):
+        with frame_numbering(frames), video or contextlib.nullcontext():
             for frame in bar:
                 ti.sync()
                 t0 = time.perf_counter()
@@ -107,6 +123,11 @@ def _simulate(scene, stepper, frames, out, export, progress, viewer, run, tqdm) 
                     t0 = time.perf_counter()
                     scene.export_frame(out, frame)
                     run["export_s"] += time.perf_counter() - t0
+                if video is not None:
+                    t0 = time.perf_counter()
+                    video.append(scene.render_frame(color_by=run["color_by"]))
+                    run["video_s"] += time.perf_counter() - t0
+                    run["video"] = video.record()
                 run["frames_done"] = frame + 1
                 if viewer is not None:
                     snap = state.snapshot()
@@ -115,7 +136,7 @@ def _simulate(scene, stepper, frames, out, export, progress, viewer, run, tqdm) 
     finally:
         bar.close()
     t0 = time.perf_counter()
-    scene.render(out / f"{scene.name}_last.png")
+    scene.render(out / f"{scene.name}_last.png", color_by=run["color_by"])
     run["render_s"] = time.perf_counter() - t0
 
 
@@ -142,6 +163,7 @@ def _summary(scene, stepper, out, frames, run, files, complete: bool) -> dict:
         "integrator_auto": scene.integrator_choice is not None,
         "export_s": run["export_s"],
         "render_s": run["render_s"],
+        "video": None if run["video"] is None else {**run["video"], "ms_per_frame": _per_frame(run)},
         "files_written": len(files),
         "out_dir": str(out),
         "png": str(out / png[0]) if png else None,
@@ -164,6 +186,11 @@ def _summary(scene, stepper, out, frames, run, files, complete: bool) -> dict:
         summary["mean_iterations"] = solver.total_iterations / solver.solves
         summary["last_residual"] = solver.last.residual
     return summary
+
+
+def _per_frame(run: dict) -> float:
+    """Milliseconds per video frame: rendering and encoding."""
+    return 1e3 * run["video_s"] / max(run["video"]["frames"], 1)
 
 
 def health_brief(health: dict | None, *, limit: int = 4) -> str:
@@ -203,4 +230,12 @@ def summary_line(s: dict) -> str:
         f"{spheres}{health}{s['ms_per_frame']:.2f} ms/frame ({s['ms_per_step']:.3f} ms/step, "
         f"{s['frame_mode']['mode']}), compile {s['compile_s']:.2f} s, "
         f"export {s['export_s']:.2f} s ({s['files_written']} files), picture {s['png']}"
+        + _video_note(s.get("video"))
     )
+
+
+def _video_note(video: dict | None) -> str:
+    if not video:
+        return ""
+    rate = f"{video['frames']} frames at {video['fps']:.4g}/s, {video['ms_per_frame']:.0f} ms/frame"
+    return f", video {video['path']} ({rate})"
