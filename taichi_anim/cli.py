@@ -107,7 +107,7 @@ def _demo(args) -> int:
         raise ParameterError(f"--frames must be >= 1, got {args.frames}")
     out = args.out or f"out/{args.name}"
     check_output_folder(out)  # before the backend starts and the scene compiles; creates nothing
-    video = _video_path(args.video, out, args.name)
+    video = _video_path(args.video)
     viewer = None
     if args.view:
         from .viewer import ViewerUnavailable, vulkan_problem
@@ -176,14 +176,11 @@ def _demo(args) -> int:
     return 0
 
 
-def _video_path(arg: str | None, out: str, name: str) -> str | None:
-    """--video's path (its default OUT/NAME.mp4), checked before the run: .mp4 or .gif."""
-    if arg is None:
-        return None
-    path = arg or f"{out}/{name}.mp4"
-    if not path.lower().endswith((".mp4", ".gif")):
-        raise ParameterError(f"--video must name an .mp4 or .gif file, got {path!r}")
-    return path
+def _video_path(arg: str | None) -> str | None:
+    """--video's path, checked before the run (.mp4 or .gif); "" for the default, OUT/<scene>.mp4."""
+    if arg and not arg.lower().endswith((".mp4", ".gif")):
+        raise ParameterError(f"--video must name an .mp4 or .gif file, got {arg!r}")
+    return arg
 
 
 def main(argv=None) -> int:

@@ -14,7 +14,7 @@ frame over its substeps; export and render time are kept apart.
 Video (`video=PATH`): each frame is rendered (Scene.render_frame) after it is exported and appended to
 an MP4 or GIF at the demo's frame rate, 1 / scene.frame_dt (render/video.py), published when the run
 completes; run.json's "video" records its path, fps, frames, size and the milliseconds per rendered
-frame (rendering and encoding)."""
+frame (rendering and encoding; the median after the first, which compiles the renderer)."""
 
 import contextlib
 import time
@@ -46,8 +46,8 @@ def run_scene(
 ) -> dict:
     """Simulate `frames` frames of `scene`; return the summary (also written to out_dir/run.json).
 
-    video: None, or the path of an MP4 or GIF of the run; color_by: what the pictures colour points
-    by ("speed", "height", "age", "none"; None: the scene's default).
+    video: None, "" (out_dir/<scene>.mp4) or the path of an MP4 or GIF of the run; color_by: what the
+    pictures colour points by ("speed", "height", "age", "none"; None: the scene's default).
 
     Raises what stopped the run (DivergenceError, OutputError, ...) after recording it in run.json."""
     from tqdm import tqdm
@@ -59,7 +59,9 @@ def run_scene(
     settings = {**scene.settings(), "frames": frames, "export": export, **(extra_settings or {})}
     write_manifest(out, settings, {}, status="running", health=stepper.health.to_dict())
     run = {"frame_times": [], "first_frame_s": None, "export_s": 0.0, "render_s": 0.0, "frames_done": 0}
-    run.update(video_path=video, color_by=color_by, video_s=0.0, video=None)
+    if video == "":
+        video = out / f"{scene.name}.mp4"
+    run.update(video_path=video, color_by=color_by, video_times=[], video=None)
     files: list[dict] = []  # what the run published, in order (see recording_files)
     status, failure = "failed", None
     try:
@@ -126,7 +128,7 @@ def _simulate(scene, stepper, frames, out, export, progress, viewer, run, tqdm) 
                 if video is not None:
                     t0 = time.perf_counter()
                     video.append(scene.render_frame(color_by=run["color_by"]))
-                    run["video_s"] += time.perf_counter() - t0
+                    run["video_times"].append(time.perf_counter() - t0)
                     run["video"] = video.record()
                 run["frames_done"] = frame + 1
                 if viewer is not None:
@@ -189,8 +191,10 @@ def _summary(scene, stepper, out, frames, run, files, complete: bool) -> dict:
 
 
 def _per_frame(run: dict) -> float:
-    """Milliseconds per video frame: rendering and encoding."""
-    return 1e3 * run["video_s"] / max(run["video"]["frames"], 1)
+    """Milliseconds per video frame, rendering and encoding: the median after the first frame (which
+    holds the renderer's JIT compile)."""
+    times = run["video_times"]
+    return 1e3 * float(np.median(times[1:] if len(times) > 1 else times))
 
 
 def health_brief(health: dict | None, *, limit: int = 4) -> str:
