@@ -42,13 +42,16 @@ def build(
     """`particles` spheres of `radius` [m] on a jittered lattice in a narrow, tall column centred over the
     floor of a 1.2 x 1.2 m box, 0.3 m above the floor, falling with random velocities: the column pours
     onto one spot and a heap forms and spreads (10^5 spheres of 6 mm: a column 0.4 m wide and 1.5 m
-    tall). 1/30 s frames of `steps_per_frame` steps (dt 1/6000 s by default) with `sweeps` projection
-    sweeps each. 200 x 1 was chosen by measurement (benchmarks/sphere_demo.py; 10^5 spheres, first
-    frames, measured on the earlier wide, low column): the closest pair stayed at 0.94 of a diameter or
-    more through the column's splash, where 160 x 1 kept 0.904 d and the old 80 x 1 left 0.75-0.84 d;
-    more sweeps cost more per unit of separation gained (80 x 4 kept 0.93 d at 20,000 spheres, as 160 x 1
-    did). benchmarks/sphere_piles.py shows the largest overlap left in a settled pile against dt and
-    sweeps."""
+    tall; it lands over 0.25-0.65 s, sloshes against the walls and heaps up in the corners). 1/30 s
+    frames of `steps_per_frame` steps (dt 1/6000 s by default) with `sweeps` projection sweeps each.
+    200 x 1 was chosen by measurement (benchmarks/sphere_demo.py; 10^5 spheres, first frames) on an
+    earlier wide, low column (0.8 m wide, 0.37 m tall): the closest pair stayed at 0.94 of a diameter or
+    more through its splash, where 160 x 1 kept 0.904 d and 80 x 1 left 0.75-0.84 d; more sweeps cost
+    more per unit of separation gained (80 x 4 kept 0.93 d at 20,000 spheres, as 160 x 1 did). The
+    taller column lands faster (up to ~5.5 m/s): measured the same way (overlap_stats after each frame,
+    10^5 spheres, 40 frames), the closest pair dips to 0.88 d at frames 17-18, as the column's top
+    lands, is 0.92-0.94 d over frames 19-24 and 0.94-0.97 d after. benchmarks/sphere_piles.py shows the largest overlap left
+    in a settled pile against dt and sweeps."""
     rng = np.random.default_rng(seed)
     spacing = 2.2 * radius
     # A narrow column (at most 30 spheres = 0.4 m wide for 6 mm spheres) so that it pours onto a heap.
