@@ -50,8 +50,8 @@ def build(
     more per unit of separation gained (80 x 4 kept 0.93 d at 20,000 spheres, as 160 x 1 did). The
     taller column lands faster (up to ~5.5 m/s): measured the same way (overlap_stats after each frame,
     10^5 spheres, 40 frames), the closest pair dips to 0.88 d at frames 17-18, as the column's top
-    lands, is 0.92-0.94 d over frames 19-24 and 0.94-0.97 d after. benchmarks/sphere_piles.py shows the largest overlap left
-    in a settled pile against dt and sweeps."""
+    lands, is 0.92-0.94 d over frames 19-24 and 0.94-0.97 d after. benchmarks/sphere_piles.py shows
+    the largest overlap left in a settled pile against dt and sweeps."""
     rng = np.random.default_rng(seed)
     spacing = 2.2 * radius
     # A narrow column (at most 30 spheres = 0.4 m wide for 6 mm spheres) so that it pours onto a heap.
