@@ -21,6 +21,7 @@ warm-up call, `ti.sync()` before each clock read; float32, Taichi's default CPU 
     .venv/bin/python benchmarks/render_cost.py --quick  # 10^4 spheres, 32^2 cloth, benchmarks/out/
 """
 
+import re
 import statistics
 import tempfile
 import time
@@ -132,7 +133,7 @@ def report(rows, args, started, elapsed: float) -> str:
             "new 2x2 + PNG",
             "new 1x1, image",
             "new (2x2 + PNG) / ti.GUI",
-            "new: first call's compile",
+            "new: first call's extra time (JIT of kernels this frame uses first)",
         ],
         [
             [
@@ -153,7 +154,7 @@ def report(rows, args, started, elapsed: float) -> str:
         [
             "# Render cost per frame",
             f"Regenerate: `{command_line(args, 'render_cost.py')}` ({elapsed / 60:.1f} min).",
-            __doc__.split("\n\n")[1].replace("\n", " "),
+            re.sub(r"\n(?!- )", " ", __doc__.split("\n\n")[1]).replace("  ", " "),
             f"{RESOLUTION[0]} x {RESOLUTION[1]} pixels; median of {REPEATS} calls after a warm-up.",
             table,
             machine_section(started),

@@ -27,12 +27,12 @@ RESOLUTION = (800, 600)
 FRAMES = {
     "fountain": 90,
     "blobs": 90,
-    "spheres": 24,
-    "cloth": 50,
+    "spheres": 16,
+    "cloth": 28,
     "drape": 100,
     "flag": 90,
     "layers": 110,
-    "tablecloth": 110,
+    "tablecloth": 60,
     "moving_mesh": 130,
 }
 
