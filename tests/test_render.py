@@ -112,26 +112,28 @@ def test_fit_camera_sees_every_corner_of_the_box():
 # ---------------------------------------------------------------------------------- spheres, depth
 
 
-def test_sphere_pixel_extent_is_the_pinhole_projection_of_its_true_radius(cam):
+def test_sphere_pixel_extent_is_the_pinhole_projection_of_its_true_radius():
+    # 400 x 300 pixels and spheres tens of pixels across, so that +-1 px tells a radius 3 % off.
+    w, h = 400, 300
+    cam = Camera(eye=(0.0, 0.0, 5.0), target=(0.0, 0.0, 0.0), fov_deg=60.0, resolution=(w, h))
+    t = math.tan(math.radians(30.0))
     # Off axis the image is an ellipse whose extreme columns are where the tangent planes through the
     # eye touch the sphere: x/z = (cx cz -+ r sqrt(cx^2 + cz^2 - r^2)) / (cz^2 - r^2) (camera coordinates).
-    c, r = np.array([0.9, 0.0, 0.0]), 0.35
+    c, r = np.array([1.4, 0.0, 0.0]), 0.7
     d = DrawList()
     d.add_spheres([c], r, (1.0, 1.0, 1.0))
-    img = render_image(d, cam, background=BG, samples=1, lighting=FLAT)
-    lit = img[..., 0] > 127
+    lit = render_image(d, cam, background=BG, samples=1, lighting=FLAT)[..., 0] > 127
     cx, cz = c[0], 5.0 - c[2]
-    t = math.tan(math.radians(30.0))
     s = math.sqrt(cx * cx + cz * cz - r * r)
     x_lo, x_hi = ((cx * cz - r * s) / (cz * cz - r * r), (cx * cz + r * s) / (cz * cz - r * r))
-    to_col = lambda xz: (xz / (t * W / H) + 1) / 2 * W  # noqa: E731
+    to_col = lambda xz: (xz / (t * w / h) + 1) / 2 * w  # noqa: E731
     cols = np.flatnonzero(lit.any(axis=0))
     assert abs(cols.min() - to_col(x_lo)) <= 1.0 and abs(cols.max() + 1 - to_col(x_hi)) <= 1.0
     # On axis: the disc's radius in pixels is f tan(asin(r/d)), f = (H/2) / tan(fov/2).
     d2 = DrawList()
     d2.add_spheres([[0.0, 0.0, 0.0]], r, (1.0, 1.0, 1.0))
     disc = render_image(d2, cam, background=BG, samples=1, lighting=FLAT)[..., 0] > 127
-    want = (H / 2) / t * math.tan(math.asin(r / 5.0))
+    want = (h / 2) / t * math.tan(math.asin(r / 5.0))
     rows, cols = np.flatnonzero(disc.any(axis=1)), np.flatnonzero(disc.any(axis=0))
     assert abs((rows.max() + 1 - rows.min()) / 2 - want) <= 1.0
     assert abs((cols.max() + 1 - cols.min()) / 2 - want) <= 1.0
