@@ -122,8 +122,8 @@ def test_full_disk_fountain_cli_fails_cleanly(tmp_path):
 
 
 def test_full_disk_through_the_cli_exits_3_with_run_json_failed(tmp_path, monkeypatch, capsys):
-    """Pass: when the disk fills while the last picture is written (a 16 kB file size limit around the
-    render; frames are 0.5 kB, the picture ~40 kB), the CLI exits 3 with one line on stderr naming the
+    """Pass: when the disk fills while the last picture is written (a 6 kB file size limit around the
+    render; frames are 0.5 kB, the picture ~16 kB), the CLI exits 3 with one line on stderr naming the
     picture, the picture is absent (not truncated), and run.json says "failed" and lists exactly the
     frames, which are complete."""
     import taichi_anim.scenes as scenes
@@ -133,7 +133,7 @@ def test_full_disk_through_the_cli_exits_3_with_run_json_failed(tmp_path, monkey
         render = scene.render
 
         def render_on_a_full_disk(path, *args, **kwargs):
-            with file_size_limit(16_000):
+            with file_size_limit(6_000):
                 return render(path, *args, **kwargs)
 
         scene.render = render_on_a_full_disk
