@@ -159,13 +159,14 @@ class Scene:
         points, segments = segments_from_pairs(begin, end)
         return [Lines("guides", points, segments, GUIDE_COLOR)]
 
-    def export_frame(self, out_dir, frame: int) -> list[Path]:
+    def export_frame(self, out_dir, frame: int, items: list | None = None) -> list[Path]:
         """Write this frame's exported items as PLY: the cloth mesh with its normals as `<name>_NNNN.ply`,
         particles (with velocity and age) as a point cloud (`<name>_particles_NNNN.ply` beside cloth),
         trails as a line set, blob surfaces and moving colliders as meshes. NNNN has 4 digits, or as many
         as the run's frame count needs (the runner sets io.export.frame_numbering); every file is
         published only once complete and flushed (io.atomic)."""
-        return write_items_ply(self.frame_content(), out_dir, self.name, frame)
+        items = self.frame_content() if items is None else items  # the runner's, shared with USD
+        return write_items_ply(items, out_dir, self.name, frame)
 
     def view_camera(self, resolution=RESOLUTION) -> Camera:
         """The demo's camera: `camera` (eye, target, fov_deg) if the scene sets one, else one fitted to

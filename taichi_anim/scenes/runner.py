@@ -29,7 +29,7 @@ from ..io.atomic import recording_files
 from ..io.export import frame_numbering
 from ..io.manifest import error_record, prepare_run_folder, write_manifest
 from ..runtime import backend_name
-from .base import Scene, write_items_ply
+from .base import Scene
 
 _EXPORT_FORMATS = ("ply", "usd", "both")
 
@@ -151,7 +151,7 @@ def _simulate(scene, stepper, frames, out, formats, progress, viewer, run, tqdm)
                     t0 = time.perf_counter()
                     items = scene.frame_content()  # once for every format
                     if "ply" in formats:
-                        write_items_ply(items, out, scene.name, frame)
+                        scene.export_frame(out, frame, items)
                     if stage is not None:
                         stage.add_frame(items, time=state.time)
                     run["export_s"] += time.perf_counter() - t0

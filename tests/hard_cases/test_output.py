@@ -271,7 +271,9 @@ def test_run_json_says_running_while_the_run_goes_on(tmp_path):
     scene = tiny_scene()
     seen = []
     export = scene.export_frame
-    scene.export_frame = lambda out, frame: seen.append(read_manifest(out)["status"]) or export(out, frame)
+    scene.export_frame = lambda out, frame, *items: (
+        seen.append(read_manifest(out)["status"]) or export(out, frame, *items)
+    )
     run_scene(scene, frames=2, out_dir=tmp_path, progress=False)
     assert seen == ["running", "running"] and read_manifest(tmp_path)["status"] == "complete"
 
@@ -307,10 +309,10 @@ def test_interrupt_marks_the_run_failed_and_lists_what_was_written(tmp_path):
     scene = tiny_scene()
     export = scene.export_frame
 
-    def interrupted(out, frame):
+    def interrupted(out, frame, *items):
         if frame == 2:
             raise KeyboardInterrupt
-        return export(out, frame)
+        return export(out, frame, *items)
 
     scene.export_frame = interrupted
     with pytest.raises(KeyboardInterrupt):
