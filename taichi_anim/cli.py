@@ -1,5 +1,5 @@
 """Command line: `taichi-anim demo [NAME] --frames N --out DIR [--arch cpu|gpu|auto] [--seed S]
-[--format ply|usd|both]`.
+[--format ply|usd|both] [--video [PATH]] [--color-by speed|height|age|none]`.
 
 Exit codes: 0 the run completed; 2 a bad parameter, or a backend or viewer that is not available here
 (argparse's own usage errors are 2 as well); 3 output could not be written (disk full, no permission,
@@ -69,6 +69,22 @@ def _parser() -> argparse.ArgumentParser:
         default="ply",
         help="export: PLY files per frame, one USD stage OUT/NAME.usd, or both (default ply)",
     )
+    d.add_argument(
+        "--video",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="PATH",
+        help="also write a video of the run at the demo's frame rate: MP4, or GIF if PATH ends in .gif "
+        "(default PATH: OUT/NAME.mp4)",
+    )
+    d.add_argument(
+        "--color-by",
+        choices=["speed", "height", "age", "none"],
+        default=None,
+        help="colour particles and spheres in the pictures and video by this attribute, with a legend "
+        "(default: the demo's choice; 'none': their own colours)",
+    )
     d.add_argument("--view", action="store_true", help="show a live GGUI window (needs a display and Vulkan)")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
@@ -97,6 +113,7 @@ def _demo(args) -> int:
         raise ParameterError(f"--frames must be >= 1, got {args.frames}")
     out = args.out or f"out/{args.name}"
     check_output_folder(out)  # before the backend starts and the scene compiles; creates nothing
+    video = _video_path(args.video)
     viewer = None
     if args.view:
         from .viewer import ViewerUnavailable, vulkan_problem
@@ -157,11 +174,20 @@ def _demo(args) -> int:
         progress=not args.quiet,
         viewer=viewer,
         extra_settings={"seed": args.seed, "arch_requested": args.arch, "arch_choice": runtime.arch_choice()},
+        video=video,
+        color_by=args.color_by,
     )
     if viewer is not None:
         viewer.close()
     print(summary_line(summary))
     return 0
+
+
+def _video_path(arg: str | None) -> str | None:
+    """--video's path, checked before the run (.mp4 or .gif); "" for the default, OUT/<scene>.mp4."""
+    if arg and not arg.lower().endswith((".mp4", ".gif")):
+        raise ParameterError(f"--video must name an .mp4 or .gif file, got {arg!r}")
+    return arg
 
 
 def main(argv=None) -> int:

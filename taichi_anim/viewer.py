@@ -330,7 +330,8 @@ class Viewer:
         self, points, colors, radius, lines, line_colors, line_width, triangles, mesh_color, mesh_colors
     ):
         """Validate and upload this frame's data; returns the scene calls to replay."""
-        from .render import _segments, fit_camera
+        from .render import fit_camera
+        from .render.image import _segments
 
         calls = []
         bounds = []

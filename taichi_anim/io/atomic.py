@@ -197,7 +197,8 @@ def remove_file(entry: Path) -> bool:
 def incomplete_reason(path: Path) -> str | None:
     """Why the file at `path` is not complete by its own description, or None if it is (or its format
     has no such description). PLY and PCD: data size against the header; PNG: the closing IEND chunk;
-    JSON: it parses; USD: usd_problem."""
+    JSON: it parses; USD: usd_problem; MP4: its boxes fill the file exactly and hold the movie header and
+    data; GIF: the trailer byte."""
     ext = path.suffix.lower()
     if ext in (".usd", ".usdc", ".usda"):
         return usd_problem(path)
@@ -210,6 +211,14 @@ def incomplete_reason(path: Path) -> str | None:
             f.seek(max(path.stat().st_size - 12, 0))
             # An empty IEND chunk: length 0, type, CRC.
             return None if f.read() == b"\0\0\0\0IEND\xaeB`\x82" else "the PNG has no closing IEND chunk"
+    if ext == ".mp4":
+        return mp4_problem(path)
+    if ext == ".gif":
+        with open(path, "rb") as f:
+            head = f.read(6)
+            f.seek(max(path.stat().st_size - 1, 0))
+            ok = head in (b"GIF87a", b"GIF89a") and f.read(1) == b";"
+        return None if ok else "the GIF has no header or no closing trailer"
     if ext == ".json":
         try:
             json.loads(path.read_bytes())
@@ -243,6 +252,33 @@ def usd_problem(path: Path) -> str | None:
     if len(prims) != expected.get("prims", len(prims)):
         return f"{expected['prims']} prims announced, {len(prims)} written"
     return None
+
+
+def mp4_problem(path: Path) -> str | None:
+    """Why an MP4 (ISO base media file) is not complete, or None: its top-level boxes (32-bit size, or 1
+    and a 64-bit size, then the type; ISO/IEC 14496-12) must end exactly at the end of the file, and
+    the movie header "moov" and the media data "mdat" must be there (an encoder that stopped early
+    leaves an empty file, no "moov", or a box running past the end)."""
+    size, pos, kinds = path.stat().st_size, 0, set()
+    if size == 0:
+        return "the MP4 is empty"
+    with open(path, "rb") as f:
+        while pos < size:
+            f.seek(pos)
+            head = f.read(16)
+            if len(head) < 8:
+                return "the MP4 ends inside a box header"
+            length, kind = int.from_bytes(head[:4], "big"), head[4:8]
+            if length == 1 and len(head) == 16:
+                length = int.from_bytes(head[8:16], "big")
+            elif length == 0:  # the last box runs to the end of the file
+                length = size - pos
+            if length < 8 or pos + length > size:
+                return f"the MP4 box {kind!r} at byte {pos} runs past the end of the file"
+            kinds.add(kind)
+            pos += length
+    missing = [k.decode() for k in (b"moov", b"mdat") if k not in kinds]
+    return f"the MP4 has no {' or '.join(missing)} box" if missing else None
 
 
 def text_rows_problem(path: Path, expected: dict[bytes, int]) -> str | None:

@@ -20,21 +20,17 @@ from ..io.export import (
     write_triangle_mesh,
 )
 from ..model import Model
-from ..render import fit_camera, render_png
+from ..render import Camera, ColorBy, fit_camera, render_items, write_png
 from ..stability import auto_substeps
 from ..state import ParticleSnapshot, State
-from .content import Lines, Mesh, Points, pairs_from_segments, segments_from_pairs
+from .content import Lines, Mesh, Points, segments_from_pairs
 
-# Cloth faces: the front (normal towards the camera) and the back in two colours, so folds read clearly;
-# props (colliders drawn for context) in grey.
+# Cloth: the front colour (the renderer lightens it for the back, so folds read clearly); props
+# (colliders drawn for context) in grey.
 CLOTH_FRONT = np.array([0.95, 0.42, 0.3])
-CLOTH_BACK = np.array([0.95, 0.78, 0.42])
 PROP_COLOR = np.array([0.55, 0.58, 0.62])
-# render_png lights with a headlight, which leaves a gently curved sheet one flat colour; a key light
-# from above, baked into the face colours, brings out the folds.
-KEY_LIGHT = np.array([-0.25, 0.8, 0.55]) / np.linalg.norm([-0.25, 0.8, 0.55])
-KEY_AMBIENT = 0.45
 GUIDE_COLOR = (0.35, 0.4, 0.45)
+RESOLUTION = (960, 720)  # [px] of pictures and videos (even: H.264 needs it)
 
 
 def check_substeps(substeps):
@@ -77,6 +73,9 @@ class Scene:
     guides: tuple | None = None
     view: tuple = (0.6, 0.45, 1.0)
     zoom: float = 1.0
+    camera: dict | None = None  # {"eye", "target" [m], "fov_deg"}: a fixed camera instead of view/zoom
+    color_by: str | None = None  # what the pictures colour points by by default (None: their colours)
+    color_ranges: dict = field(default_factory=dict)  # attribute -> (lo, hi) fixed for every frame
     substeps_auto: dict | None = None  # how substeps="auto" chose the substeps (None: fixed by the scene)
     integrator_choice: dict | None = None  # how integrator="auto" chose the method (choice.Choice.record)
 
@@ -160,36 +159,49 @@ class Scene:
         points, segments = segments_from_pairs(begin, end)
         return [Lines("guides", points, segments, GUIDE_COLOR)]
 
-    def export_frame(self, out_dir, frame: int) -> list[Path]:
+    def export_frame(self, out_dir, frame: int, items: list | None = None) -> list[Path]:
         """Write this frame's exported items as PLY: the cloth mesh with its normals as `<name>_NNNN.ply`,
         particles (with velocity and age) as a point cloud (`<name>_particles_NNNN.ply` beside cloth),
         trails as a line set, blob surfaces and moving colliders as meshes. NNNN has 4 digits, or as many
         as the run's frame count needs (the runner sets io.export.frame_numbering); every file is
         published only once complete and flushed (io.atomic)."""
-        return write_items_ply(self.frame_content(), out_dir, self.name, frame)
+        items = self.frame_content() if items is None else items  # the runner's, shared with USD
+        return write_items_ply(items, out_dir, self.name, frame)
 
-    def render(self, path, resolution=(960, 720)) -> Path:
-        """A PNG of the current state (headless; no display or Vulkan needed): particles as dots, cloth
-        shaded (front and back in two colours), props in grey, trails and guides as lines."""
-        items = self.frame_content()
+    def view_camera(self, resolution=RESOLUTION) -> Camera:
+        """The demo's camera: `camera` (eye, target, fov_deg) if the scene sets one, else one fitted to
+        `bounds` from the direction `view`, closer by `zoom`."""
+        if self.camera is not None:
+            return Camera(resolution=tuple(resolution), **self.camera)
         lo, hi = (np.asarray(b, dtype=float) for b in self.bounds)
-        camera = fit_camera(lo, hi, direction=self.view, resolution=resolution, margin=1.1 / self.zoom)
-        points = [i for i in items if isinstance(i, Points) and len(i.positions)]
-        lines = [pairs_from_segments(i) for i in items if isinstance(i, Lines) and len(i.segments)]
-        cloth = next((i for i in items if isinstance(i, Mesh) and i.role == "cloth"), None)
-        props = [(i.vertices, i.triangles) for i in items if isinstance(i, Mesh) and i.role != "cloth"]
-        mesh = None if cloth is None else (cloth.vertices, cloth.triangles)
-        triangles = _surfaces(camera.eye, mesh, props)
-        return render_png(
-            path,
-            points=np.vstack([p.positions for p in points]) if points else None,
-            colors=np.vstack([p.colors for p in points]) if points else None,
-            radius_px=2.0,
-            lines=(np.vstack([b for b, _ in lines]), np.vstack([e for _, e in lines])) if lines else None,
-            line_colors=GUIDE_COLOR,
-            triangles=triangles,
-            camera=camera,
+        return fit_camera(lo, hi, direction=self.view, resolution=resolution, margin=1.1 / self.zoom)
+
+    def color_spec(self, color_by: str | None = None) -> ColorBy | None:
+        """ColorBy for `color_by` ("speed", "height", "age"; None: the scene's default; "none": the
+        items' own colours) with the scene's fixed range for it (height: the bounds' y range)."""
+        name = self.color_by if color_by is None else color_by
+        if name is None or name == "none":
+            return None
+        lo, hi = self.color_ranges.get(name, (None, None))
+        if name == "height" and name not in self.color_ranges:
+            lo, hi = float(self.bounds[0][1]), float(self.bounds[1][1])
+        return ColorBy(name, lo, hi)
+
+    def render_frame(self, resolution=RESOLUTION, *, color_by: str | None = None, samples: int = 2):
+        """The picture of the current state, (H, W, 3) uint8 (headless; no display or Vulkan needed):
+        spheres at their radius and particles as balls of `point_radius`, shaded; cloth smooth-shaded
+        with a lighter back; props, trails and guides; colour by an attribute with its legend."""
+        return render_items(
+            self.frame_content(),
+            self.view_camera(resolution),
+            point_radius=self.point_radius,
+            color_by=self.color_spec(color_by),
+            samples=samples,
         )
+
+    def render(self, path, resolution=RESOLUTION, *, color_by: str | None = None) -> Path:
+        """A PNG of the current state (render_frame), written atomically."""
+        return write_png(path, self.render_frame(resolution, color_by=color_by))
 
     def settings(self) -> dict:
         return {
@@ -211,39 +223,6 @@ def _box_edges(lo, hi):
     pairs = [(i, i | 1 << k) for i in range(8) for k in range(3) if not i >> k & 1]
     a, b = zip(*pairs, strict=True)
     return corners[list(a)], corners[list(b)]
-
-
-def _surfaces(eye, mesh, props):
-    """Cloth and props as one (vertices, triangles, face colours) for render_png, or None if empty."""
-    parts = []
-    if mesh is not None:
-        v, f = mesh[0], mesh[1]
-        n = _unit_normals(v, f)
-        front = np.einsum("ij,ij->i", n, np.asarray(eye) - v[f].mean(axis=1)) >= 0.0
-        parts.append((v, f, np.where(front[:, None], CLOTH_FRONT, CLOTH_BACK)))
-    for v, f in props:
-        v, f = np.asarray(v, dtype=float), np.asarray(f)
-        parts.append((v, f, np.tile(PROP_COLOR, (len(f), 1))))
-    if not parts:
-        return None
-    lit = []
-    for v, f, c in parts:
-        # Smooth normals (the face's vertex normals averaged) keep grid-scale ripples from flickering.
-        n = area_weighted_normals(v, f)[f].sum(axis=1)
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-        lit.append((v, f, c * (KEY_AMBIENT + (1.0 - KEY_AMBIENT) * np.abs(n @ KEY_LIGHT))[:, None]))
-    parts = lit
-    offsets = np.cumsum([0] + [len(v) for v, _, _ in parts[:-1]])
-    return (
-        np.vstack([v for v, _, _ in parts]),
-        np.vstack([f + o for (_, f, _), o in zip(parts, offsets, strict=True)]),
-        np.vstack([c for _, _, c in parts]),
-    )
-
-
-def _unit_normals(v, f):
-    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
 
 
 def write_items_ply(items, out_dir, scene: str, frame: int) -> list[Path]:

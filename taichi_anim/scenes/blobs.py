@@ -12,8 +12,7 @@ import numpy as np
 from .. import Builder, make_integrator
 from ..blobs import BlobField, BlobMesh
 from ..errors import ParameterError
-from ..render import fit_camera, render_png
-from .base import Scene, _box_edges
+from .base import Scene
 from .content import Mesh
 
 WATER = (0.35, 0.6, 0.95)
@@ -43,18 +42,6 @@ class BlobScene(Scene):
         mesh = self.mesh()
         surface = Mesh("mesh", mesh.vertices, mesh.triangles, mesh.normals, WATER, role="surface")
         return [*super().frame_content(), surface]
-
-    def render(self, path, resolution=(960, 720)):
-        """A PNG of the current mesh, shaded, inside the box's edges."""
-        mesh = self.mesh()
-        lo, hi = (np.asarray(b, dtype=float) for b in self.bounds)
-        return render_png(
-            path,
-            triangles=(mesh.vertices, mesh.triangles, WATER) if mesh.triangle_count else None,
-            lines=_box_edges(lo, hi),
-            line_colors=(0.35, 0.4, 0.45),
-            camera=fit_camera(lo, hi, resolution=resolution),
-        )
 
     def settings(self) -> dict:
         return {**super().settings(), "blobs": self.blobs.settings(), "iso": self.iso, "method": self.method}
@@ -116,6 +103,9 @@ def build(
         bounds=(lo, hi),
         point_radius=0.01,
         options={"particles": particles, "sigma": sigma, "iso": iso, "resolution": resolution},
+        view=(0.35, 0.5, 1.0),
+        zoom=1.25,
+        color_ranges={"speed": (0.0, 4.0), "age": (0.0, lifetime)},
         blobs=field,
         iso=iso,
         method=method,

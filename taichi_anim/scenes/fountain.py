@@ -45,4 +45,7 @@ def build(*, seed: int = 0, integrator: str = "symplectic_euler", particles: int
         bounds=(lo, hi),
         point_radius=0.01,
         options={"particles": particles, "lifetime": lifetime},
+        color_ranges={"speed": (0.0, 7.0), "age": (0.0, lifetime)},
+        view=(0.6, 0.3, 1.0),
+        zoom=1.1,
     )

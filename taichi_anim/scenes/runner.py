@@ -9,7 +9,12 @@ bad step is written.
 Timings: a frame's substeps run as one call (Stepper.advance, launched as Stepper.frame_mode says,
 recorded in run.json) timed with `ti.sync()` before every clock read; the first frame includes JIT
 compilation, reported as compile_s = first frame minus a steady (median) frame; ms_per_step is a steady
-frame over its substeps; export and render time are kept apart."""
+frame over its substeps; export and render time are kept apart.
+
+Video (`video=PATH`): each frame is rendered (Scene.render_frame) after it is exported and appended to
+an MP4 or GIF at the demo's frame rate, 1 / scene.frame_dt (render/video.py), published when the run
+completes; run.json's "video" records its path, fps, frames, size and the milliseconds per rendered
+frame (rendering and encoding; the median after the first, which compiles the renderer)."""
 
 import contextlib
 import time
@@ -39,11 +44,15 @@ def run_scene(
     viewer=None,
     extra_settings: dict | None = None,
     export_format: str = "ply",
+    video=None,
+    color_by: str | None = None,
 ) -> dict:
     """Simulate `frames` frames of `scene`; return the summary (also written to out_dir/run.json).
 
     export_format: "ply" (a file per item and frame), "usd" (one stage, out_dir/<scene>.usd, saved at
     the end: io/usd.py) or "both"; with export=False nothing is written.
+    video: None, "" (out_dir/<scene>.mp4) or the path of an MP4 or GIF of the run; color_by: what the
+    pictures colour points by ("speed", "height", "age", "none"; None: the scene's default).
 
     Raises what stopped the run (DivergenceError, OutputError, ...) after recording it in run.json."""
     from tqdm import tqdm
@@ -57,6 +66,9 @@ def run_scene(
     settings.update(extra_settings or {})
     write_manifest(out, settings, {}, status="running", health=stepper.health.to_dict())
     run = {"frame_times": [], "first_frame_s": None, "export_s": 0.0, "render_s": 0.0, "frames_done": 0}
+    if video == "":
+        video = out / f"{scene.name}.mp4"
+    run.update(video_path=video, color_by=color_by, video_times=[], video=None)
     files: list[dict] = []  # what the run published, in order (see recording_files)
     status, failure = "failed", None
     try:
@@ -112,11 +124,16 @@ def _usd_stage(scene, out, formats):
 
 
 def _simulate(scene, stepper, frames, out, formats, progress, viewer, run, tqdm) -> None:
+    from ..render import VideoWriter
+
     state = scene.state
-    bar = tqdm(range(frames), desc=scene.name, unit="frame", disable=not progress, leave=False)
+    desc = scene.name if run["video_path"] is None else f"{scene.name} (+video)"
+    bar = tqdm(range(frames), desc=desc, unit="frame", disable=not progress, leave=False)
+    video = None if run["video_path"] is None else VideoWriter(run["video_path"], fps=1.0 / scene.frame_dt)
     try:
         # A stage is saved when the block ends, also when a frame diverges: with the frames before it.
-        with frame_numbering(frames), _usd_stage(scene, out, formats) as stage:
+        outputs = frame_numbering(frames), _usd_stage(scene, out, formats), video or contextlib.nullcontext()
+        with outputs[0], outputs[1] as stage, outputs[2]:
             for frame in bar:
                 ti.sync()
                 t0 = time.perf_counter()
@@ -132,11 +149,17 @@ def _simulate(scene, stepper, frames, out, formats, progress, viewer, run, tqdm)
                 stepper.check(state, energy=True)
                 if formats:
                     t0 = time.perf_counter()
+                    items = scene.frame_content()  # once for every format
                     if "ply" in formats:
-                        scene.export_frame(out, frame)
+                        scene.export_frame(out, frame, items)
                     if stage is not None:
-                        stage.add_frame(scene.frame_content(), time=state.time)
+                        stage.add_frame(items, time=state.time)
                     run["export_s"] += time.perf_counter() - t0
+                if video is not None:
+                    t0 = time.perf_counter()
+                    video.append(scene.render_frame(color_by=run["color_by"]))
+                    run["video_times"].append(time.perf_counter() - t0)
+                    run["video"] = video.record()
                 run["frames_done"] = frame + 1
                 if viewer is not None:
                     snap = state.snapshot()
@@ -149,7 +172,7 @@ def _simulate(scene, stepper, frames, out, formats, progress, viewer, run, tqdm)
     finally:
         bar.close()
     t0 = time.perf_counter()
-    scene.render(out / f"{scene.name}_last.png")
+    scene.render(out / f"{scene.name}_last.png", color_by=run["color_by"])
     run["render_s"] = time.perf_counter() - t0
 
 
@@ -176,6 +199,7 @@ def _summary(scene, stepper, out, frames, run, files, complete: bool) -> dict:
         "integrator_auto": scene.integrator_choice is not None,
         "export_s": run["export_s"],
         "render_s": run["render_s"],
+        "video": None if run["video"] is None else {**run["video"], "ms_per_frame": _per_frame(run)},
         "files_written": len(files),
         "out_dir": str(out),
         "png": str(out / png[0]) if png else None,
@@ -198,6 +222,13 @@ def _summary(scene, stepper, out, frames, run, files, complete: bool) -> dict:
         summary["mean_iterations"] = solver.total_iterations / solver.solves
         summary["last_residual"] = solver.last.residual
     return summary
+
+
+def _per_frame(run: dict) -> float:
+    """Milliseconds per video frame, rendering and encoding: the median after the first frame (which
+    holds the renderer's JIT compile)."""
+    times = run["video_times"]
+    return 1e3 * float(np.median(times[1:] if len(times) > 1 else times))
 
 
 def health_brief(health: dict | None, *, limit: int = 4) -> str:
@@ -237,4 +268,12 @@ def summary_line(s: dict) -> str:
         f"{spheres}{health}{s['ms_per_frame']:.2f} ms/frame ({s['ms_per_step']:.3f} ms/step, "
         f"{s['frame_mode']['mode']}), compile {s['compile_s']:.2f} s, "
         f"export {s['export_s']:.2f} s ({s['files_written']} files), picture {s['png']}"
+        + _video_note(s.get("video"))
     )
+
+
+def _video_note(video: dict | None) -> str:
+    if not video:
+        return ""
+    rate = f"{video['frames']} frames at {video['fps']:.4g}/s, {video['ms_per_frame']:.0f} ms/frame"
+    return f", video {video['path']} ({rate})"

@@ -91,5 +91,5 @@ def build(
         props=[table],
         guides=(floor, np.roll(floor, -1, axis=0)),
         view=(0.8, 0.6, 1.0),
-        zoom=1.0,
+        zoom=1.5,
     )

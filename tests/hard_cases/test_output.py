@@ -122,8 +122,8 @@ def test_full_disk_fountain_cli_fails_cleanly(tmp_path):
 
 
 def test_full_disk_through_the_cli_exits_3_with_run_json_failed(tmp_path, monkeypatch, capsys):
-    """Pass: when the disk fills while the last picture is written (a 16 kB file size limit around the
-    render; frames are 0.5 kB, the picture ~40 kB), the CLI exits 3 with one line on stderr naming the
+    """Pass: when the disk fills while the last picture is written (a 6 kB file size limit around the
+    render; frames are 0.5 kB, the picture ~16 kB), the CLI exits 3 with one line on stderr naming the
     picture, the picture is absent (not truncated), and run.json says "failed" and lists exactly the
     frames, which are complete."""
     import taichi_anim.scenes as scenes
@@ -133,7 +133,7 @@ def test_full_disk_through_the_cli_exits_3_with_run_json_failed(tmp_path, monkey
         render = scene.render
 
         def render_on_a_full_disk(path, *args, **kwargs):
-            with file_size_limit(16_000):
+            with file_size_limit(6_000):
                 return render(path, *args, **kwargs)
 
         scene.render = render_on_a_full_disk
@@ -271,7 +271,9 @@ def test_run_json_says_running_while_the_run_goes_on(tmp_path):
     scene = tiny_scene()
     seen = []
     export = scene.export_frame
-    scene.export_frame = lambda out, frame: seen.append(read_manifest(out)["status"]) or export(out, frame)
+    scene.export_frame = lambda out, frame, *items: (
+        seen.append(read_manifest(out)["status"]) or export(out, frame, *items)
+    )
     run_scene(scene, frames=2, out_dir=tmp_path, progress=False)
     assert seen == ["running", "running"] and read_manifest(tmp_path)["status"] == "complete"
 
@@ -307,10 +309,10 @@ def test_interrupt_marks_the_run_failed_and_lists_what_was_written(tmp_path):
     scene = tiny_scene()
     export = scene.export_frame
 
-    def interrupted(out, frame):
+    def interrupted(out, frame, *items):
         if frame == 2:
             raise KeyboardInterrupt
-        return export(out, frame)
+        return export(out, frame, *items)
 
     scene.export_frame = interrupted
     with pytest.raises(KeyboardInterrupt):
