@@ -201,6 +201,9 @@ PENDING_METHOD_DOCSTRINGS = {
     "taichi_anim.model.Model.inv_mass",
     "taichi_anim.model.Model.mass",
     "taichi_anim.model.Model.radius",
+    "taichi_anim.render.colormap.ColorBy.label",
+    "taichi_anim.render.colormap.ColorBy.unit",
+    "taichi_anim.render.image.Lighting.light_direction",
     "taichi_anim.scenes.base.Scene.frame_dt",
     "taichi_anim.scenes.base.Scene.settings",
 }
