@@ -191,6 +191,7 @@ def _video_path(arg: str | None) -> str | None:
 
 
 def main(argv=None) -> int:
+    """Run the command line with `argv` (default sys.argv[1:]); returns the exit code (see above)."""
     args = _parser().parse_args(argv)
     if args.command is None:  # bare `taichi-anim` runs the default demo
         args = _parser().parse_args(["demo", *(argv or [])])

@@ -69,14 +69,18 @@ class Health:
         self._warned: set[str] = set()
 
     def count(self, key: str, n: int = 1) -> None:
+        """Add n to the tally `key` (e.g. "linear_unconverged", "substeps_rejected")."""
         self.counts[key] += n
 
     def event(self, kind: str, step: int | None, message: str, **data) -> None:
+        """Record an event of `kind` at `step` (counted; its message and data kept up to MAX_EVENTS)."""
         self.counts[kind] += 1  # an event is also a count, under its own kind
         if len(self.events) < MAX_EVENTS:
             self.events.append({"kind": kind, "step": step, "message": message, **data})
 
     def report(self, kind: str, step: int | None, message: str, setting: str, **data) -> None:
+        """Record an event and act on it as the policy field `setting` says: "ignore", "warn" (one
+        warning per kind) or "raise" (the error of that kind)."""
         self.event(kind, step, message, **data)
         action = getattr(self.policy, setting)
         if action == "raise":
@@ -87,4 +91,5 @@ class Health:
             warnings.warn(f"{message} (further '{kind}' events are counted in the run summary)", category, 3)
 
     def to_dict(self) -> dict:
+        """{"policy", "counts", "events"} as plain data, for the summary line and run.json."""
         return {"policy": asdict(self.policy), "counts": dict(self.counts), "events": list(self.events)}

@@ -141,11 +141,13 @@ class Model:
             c.prepare(t, h)
 
     def emit(self, state: State, dt: float) -> None:
+        """Run every emitter for a step of dt [s] on `state` (births into free slots)."""
         for e in self.emitters:
             e.emit(state, state.time, dt, self.seed, state.step_count)
 
     @ti.func
     def mass(self, i):
+        """Mass [kg] of particle i (0 for pinned particles); Taichi scope."""
         m = ti.cast(self.uniform_mass or 0.0, float)
         if ti.static(self.per_particle_mass):
             m = self.particle_mass[i]
@@ -153,6 +155,7 @@ class Model:
 
     @ti.func
     def inv_mass(self, i):
+        """Inverse mass [1/kg] of particle i (0 for pinned particles); Taichi scope."""
         w = ti.cast(self.uniform_inv_mass, float)
         if ti.static(self.per_particle_mass):
             w = self.particle_inv_mass[i]
@@ -160,6 +163,7 @@ class Model:
 
     @ti.func
     def radius(self, i):
+        """Radius [m] of particle i (0 for points); Taichi scope."""
         r = ti.cast(self.uniform_radius or 0.0, float)
         if ti.static(self.per_particle_radius):
             r = self.particle_radius[i]
@@ -167,6 +171,7 @@ class Model:
 
     @ti.func
     def alive(self, state: ti.template(), i, t):
+        """Whether particle i of `state` is alive at time t [s]; Taichi scope."""
         ok = True
         if ti.static(state.has_lifetimes):
             ok = state.particle_death[i] > t
@@ -211,6 +216,7 @@ class Model:
 
     @ti.func
     def accel(self, i, x, v, t):
+        """Acceleration [m/s^2] of particle i from the pointwise terms at (x, v, t); Taichi scope."""
         return self.force(i, x, v, t) * self.inv_mass(i)
 
     @ti.func

@@ -54,6 +54,7 @@ class IntegratorAdaptive(Integrator):
         self.rejected = 0
 
     def settings(self) -> dict:
+        """The options (base method, tol, max_rejected) and the accepted/rejected substep counts."""
         return {
             **super().settings(),
             "base": self.base.name,

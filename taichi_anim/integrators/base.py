@@ -60,6 +60,7 @@ class Integrator:
         self._stepper = None
 
     def settings(self) -> dict:
+        """The method's name, order and collision mode (and subclasses' options), for run.json."""
         return {"integrator": self.name, "order": self.order, "collision_mode": self.collision_mode.value}
 
     def bind(self, model) -> None:
@@ -100,6 +101,9 @@ class Integrator:
         self.advance(model, state, x, v, x, v, state.time, state.time, dt, state.step_count + 1, True)
 
     def advance(self, model, state, xi, vi, xo, vo, ta, t, h, step, finish) -> None:
+        """One step of h [s] from fields (xi, vi) at time t into (xo, vo): the preparing launches, then the
+        final kernel (finished with colliders and the divergence watch when `finish`); `step` numbers it
+        for reports and `ta` is the state's time at the start of the outer step."""
         self.prepare(model, state, xi, vi, ta, t, h)
         self._final(model, state, xi, vi, xo, vo, ta, t, h, step, finish)
         self.evaluations += self.stages

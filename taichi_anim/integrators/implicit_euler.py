@@ -99,9 +99,11 @@ class IntegratorImplicitEuler(Integrator):
 
     @property
     def newton(self) -> bool:
+        """Whether steps solve the backward-Euler equations by Newton (newton_iterations > 1)."""
         return self.newton_iterations > 1
 
     def settings(self) -> dict:
+        """The options, the linear solver's settings and, with Newton, its iteration settings."""
         out = {**super().settings(), **self.linear_solver.settings()}
         if self.newton:
             out.update(
@@ -137,6 +139,7 @@ class IntegratorImplicitEuler(Integrator):
             self.system.solution.from_numpy(carry["warm"])
 
     def advance(self, model, state, xi, vi, xo, vo, ta, t, h, step, finish) -> None:
+        """Integrator.advance, remembering the step number for the solve's reports."""
         self._step = step  # for the reports of prepare()
         super().advance(model, state, xi, vi, xo, vo, ta, t, h, step, finish)
 
@@ -314,6 +317,7 @@ class IntegratorImplicitEuler(Integrator):
 
     @ti.func
     def update(self, model: ti.template(), i, x0, v0, t, h):
+        """(x1, v1) of particle i after the solve: v1 = v0 + dv, x1 = x0 + h v1 (Baraff & Witkin eq. 6)."""
         v1 = v0
         if ti.static(model.coupled):
             v1 = v0 + self.system.solution[i]

@@ -74,6 +74,7 @@ class IntegratorRK45(IntegratorRungeKutta):
         self.rejected = 0
 
     def settings(self) -> dict:
+        """The options (adaptive, rtol, atol, max_rejected) and the accepted/rejected step counts."""
         return {
             **super().settings(),
             "adaptive": self.adaptive,

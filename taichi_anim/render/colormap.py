@@ -71,6 +71,7 @@ class ColorBy:
 
     @property
     def unit(self) -> str:
+        """The attribute's unit ("m/s", "m", "s")."""
         return ATTRIBUTES[self.attribute]
 
     def values(self, positions, attributes: dict) -> np.ndarray | None:
@@ -94,6 +95,7 @@ class ColorBy:
 
     @property
     def label(self) -> str:
+        """The legend's title, e.g. "speed [m/s]"."""
         return f"{self.attribute} [{self.unit}]"
 
 

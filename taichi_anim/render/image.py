@@ -41,6 +41,7 @@ class Lighting:
     shininess: float = 40.0
 
     def light_direction(self, camera: Camera) -> np.ndarray:
+        """Unit vector towards the key light: `direction` if set, else one above and beside the camera."""
         if self.direction is not None:
             d = np.asarray(validate.unit3("lighting.direction", self.direction), dtype=np.float64)
             return d

@@ -87,6 +87,7 @@ class Scene:
 
     @property
     def frame_dt(self) -> float:
+        """Duration of one frame [s]: dt x substeps."""
         return self.dt * self.substeps
 
     def advance_frame(self) -> None:
@@ -204,6 +205,7 @@ class Scene:
         return write_png(path, self.render_frame(resolution, color_by=color_by))
 
     def settings(self) -> dict:
+        """Everything that defines the run (dt, substeps, their choice, integrator, model, options)."""
         return {
             "scene": self.name,
             "dt": self.dt,
