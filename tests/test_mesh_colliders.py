@@ -267,6 +267,7 @@ def test_mesh_files_and_open3d_meshes_and_bad_options(tmp_path):
             ta.Builder().add_collider_mesh((v, f), **options)
 
 
+@pytest.mark.slow  # ~1 min of demo frames; test_demos runs the moving_mesh demo by default
 def test_moving_mesh_demo_carries_the_cloth_and_exports_the_ball(tmp_path):
     # The demo's ball (a UV-sphere mesh) rises 0.3 m and turns 120 degrees about +y between t = 0.5 and
     # 2.5 s. The cloth lying on it never gets inside it or within its thickness, is lifted with it and,
