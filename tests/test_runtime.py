@@ -43,7 +43,7 @@ def lines(proc: subprocess.Popen) -> list[str]:
     return [line for line in out.splitlines() if not line.startswith("[Taichi]")]
 
 
-@pytest.mark.slow  # two child processes compile every kernel twice (~1-2 min); the version gate is tested below
+@pytest.mark.slow  # two child processes compile every kernel (~1-2 min); the version gate is tested below
 def test_fast_and_plain_data_oriented_give_the_same_bits():
     procs = start(False), start(True)  # both at once: each is mostly single-threaded JIT compilation
     fast, plain = (lines(p) for p in procs)

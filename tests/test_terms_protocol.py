@@ -180,7 +180,7 @@ def test_undamped_membrane_keeps_its_energy_under_symplectic_euler():
     assert np.max(np.abs(drift)) < 0.01 * scale
 
 
-@pytest.mark.slow  # ~1.5 min; the flag demo and the divergence hard cases cover implicit frame steps by default
+@pytest.mark.slow  # ~1.5 min; the flag demo and the hard cases cover implicit frame steps by default
 def test_implicit_euler_never_diverges_at_frame_steps_on_the_stiffest_demo_fabric():
     """The flag's fabric (E = 2e3 N/m) and a 10x stiffer one, in wind, at dt = 1/60 for 3 s: finite,
     every edge within 1.5x its rest length, no vertex faster than the wind allows."""
