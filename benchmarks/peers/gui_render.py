@@ -16,6 +16,7 @@ from taichi_anim.errors import ParameterError
 from taichi_anim.io.export import atomic_path
 from taichi_anim.render import Camera, fit_camera
 from taichi_anim.render.camera import DEFAULT_RESOLUTION
+from taichi_anim.render.image import _segments  # the same input forms as the new renderer
 
 POINT_COLOR = 0xF2C66D
 LINE_COLOR = 0x7FB2FF
@@ -54,26 +55,6 @@ def _take(color: int | np.ndarray, idx: np.ndarray) -> int | np.ndarray:
 
 
 # --------------------------------------------------------------------------------------------- inputs
-
-
-def _segments(lines) -> tuple[np.ndarray, np.ndarray]:
-    """`lines` as (begin (M,3), end (M,3)) or (points (P,3), indices (L,2) int) -> begin, end."""
-    if not isinstance(lines, (tuple, list)) or len(lines) != 2:
-        raise ParameterError(
-            "lines must be a pair: (begin (M,3), end (M,3)) or (points (P,3), lines (L,2) int)"
-        )
-    a, b = np.asarray(lines[0]), np.asarray(lines[1])
-    if np.issubdtype(b.dtype, np.integer) and b.ndim == 2 and b.shape[1] == 2:
-        pts = validate.finite_array("lines[0] (points)", a, (3,))
-        idx = validate.indices("lines[1] (indices)", b, 2, len(pts), "points")
-        return pts[idx[:, 0]], pts[idx[:, 1]]
-    begin = validate.finite_array("lines[0] (begin)", a, (3,))
-    end = validate.finite_array("lines[1] (end)", b, (3,))
-    if begin.shape != end.shape:
-        raise ParameterError(
-            f"lines begin and end must have the same shape, got {begin.shape} and {end.shape}"
-        )
-    return begin, end
 
 
 def _mesh(triangles):
