@@ -42,7 +42,7 @@ def build(
     """`particles` spheres of `radius` [m] on a jittered lattice in a narrow, tall column centred over the
     floor of a 1.2 x 1.2 m box, 0.3 m above the floor, falling with random velocities: the column pours
     onto one spot and a heap forms and spreads (10^5 spheres of 6 mm: a column 0.47 m wide and 1.03 m
-    tall; it lands over 0.25-0.52 s, and sloshes against the walls). 1/30 s
+    tall; it lands over 0.25-0.52 s and sloshes against the walls). 1/30 s
     frames of `steps_per_frame` steps (dt 1/7200 s by default) with `sweeps` projection sweeps each.
     The setting was chosen by measurement (overlap_stats after each frame, 10^5 spheres, f32; the
     closest pair is worst as the column's top lands, at up to ~5 m/s, and the overlap left then scales
