@@ -36,26 +36,30 @@ def build(
     integrator: str = "symplectic_euler",
     particles: int = 100_000,
     radius: float = 0.006,
-    steps_per_frame: int = 200,
+    steps_per_frame: int = 240,
     sweeps: int = 1,
 ) -> Scene:
     """`particles` spheres of `radius` [m] on a jittered lattice in a narrow, tall column centred over the
     floor of a 1.2 x 1.2 m box, 0.3 m above the floor, falling with random velocities: the column pours
-    onto one spot and a heap forms and spreads (10^5 spheres of 6 mm: a column 0.4 m wide and 1.5 m
-    tall; it lands over 0.25-0.65 s, sloshes against the walls and heaps up in the corners). 1/30 s
-    frames of `steps_per_frame` steps (dt 1/6000 s by default) with `sweeps` projection sweeps each.
-    200 x 1 was chosen by measurement (benchmarks/sphere_demo.py; 10^5 spheres, first frames) on an
-    earlier wide, low column (0.8 m wide, 0.37 m tall): the closest pair stayed at 0.94 of a diameter or
-    more through its splash, where 160 x 1 kept 0.904 d and 80 x 1 left 0.75-0.84 d; more sweeps cost
-    more per unit of separation gained (80 x 4 kept 0.93 d at 20,000 spheres, as 160 x 1 did). The
-    taller column lands faster (up to ~5.5 m/s): measured the same way (overlap_stats after each frame,
-    10^5 spheres, 40 frames), the closest pair dips to 0.88 d at frames 17-18, as the column's top
-    lands, is 0.92-0.94 d over frames 19-24 and 0.94-0.97 d after. benchmarks/sphere_piles.py shows
-    the largest overlap left in a settled pile against dt and sweeps."""
+    onto one spot and a heap forms and spreads (10^5 spheres of 6 mm: a column 0.47 m wide and 1.03 m
+    tall; it lands over 0.25-0.52 s and sloshes against the walls). 1/30 s
+    frames of `steps_per_frame` steps (dt 1/7200 s by default) with `sweeps` projection sweeps each.
+    The setting was chosen by measurement (overlap_stats after each frame, 10^5 spheres, f32; the
+    closest pair is worst as the column's top lands, at up to ~5 m/s, and the overlap left then scales
+    about as dt): the earlier column, 0.4 m wide and 1.5 m tall (top landing at ~5.9 m/s), dipped to
+    0.88 d at frames 17-18 with 200 x 1, to 0.900 d with 240 x 1 and 0.918 d with 260 x 1; this wider,
+    shorter column with 240 x 1 keeps 0.919 d (frame 16, as its top lands; 0.94 d or more over frames
+    10-21 otherwise, and above 0.9 d over all 60 frames), at 1.2x the steps per frame of 200 x 1 (1.13x
+    the wall time, 12.0 against 10.6 s per frame run side by side on a shared 2-core CPU). On an earlier
+    wide, low column (0.8 m wide, 0.37 m tall) 200 x 1 kept 0.94 d, 160 x 1 0.904 d and 80 x 1
+    0.75-0.84 d; more sweeps cost more per unit of separation gained (80 x 4 kept 0.93 d at 20,000
+    spheres, as 160 x 1 did; benchmarks/sphere_demo.py). benchmarks/sphere_piles.py shows the largest
+    overlap left in a settled pile against dt and sweeps."""
     rng = np.random.default_rng(seed)
     spacing = 2.2 * radius
-    # A narrow column (at most 30 spheres = 0.4 m wide for 6 mm spheres) so that it pours onto a heap.
-    side = max(2, min(30, round(0.65 * particles ** (1 / 3))))
+    # A narrow column (at most 36 spheres = 0.47 m wide for 6 mm spheres) so that it pours onto a heap;
+    # a narrower one is taller and lands faster, leaving deeper overlaps.
+    side = max(2, min(36, round(0.78 * particles ** (1 / 3))))
     layers = -(-particles // (side * side))
     g = np.stack(np.meshgrid(np.arange(side), np.arange(layers), np.arange(side), indexing="ij"), -1)
     g = g.reshape(-1, 3)[:particles]
