@@ -27,7 +27,7 @@ RESOLUTION = (800, 600)
 FRAMES = {
     "fountain": 90,
     "blobs": 90,
-    "spheres": 16,
+    "spheres": 14,
     "cloth": 28,
     "drape": 100,
     "flag": 90,

@@ -65,7 +65,7 @@ def test_spheres_demo_exports_radii_and_keeps_spheres_in_the_box(tmp_path):
     overlap, contacts = scene.integrator.stepper_for(scene.model).contacts.overlap_stats(
         scene.model, scene.state
     )
-    assert contacts > 1000 and overlap < 0.25 * r  # mid-impact, one sweep per step (1/6000 s)
+    assert contacts > 1000 and overlap < 0.25 * r  # mid-impact, one sweep per step (1/7200 s)
 
 
 def _edge_lengths(x, triangles):
