@@ -179,12 +179,6 @@ def test_every_public_name_is_in_the_reference_with_a_docstring(built_docs):
     assert not undocumented, f"public functions/classes without a docstring: {undocumented}"
 
 
-# Public methods whose docstrings are still to be written, in modules this test's authors do not
-# maintain; remove a name when its docstring lands (the test fails on any other undocumented method,
-# and on a name here that has gained a docstring, so the list only shrinks).
-PENDING_METHOD_DOCSTRINGS: set[str] = set()
-
-
 def public_classes() -> list[type]:
     classes = []
     for module_name in API_MODULES:
@@ -211,7 +205,4 @@ def test_public_methods_have_docstrings():
                 continue
             if not inspect.getdoc(getattr(cls, name)) and not inspect.getdoc(attr):
                 undocumented.add(f"{owner.__module__}.{owner.__qualname__}.{name}")
-    new = sorted(undocumented - PENDING_METHOD_DOCSTRINGS)
-    done = sorted(PENDING_METHOD_DOCSTRINGS - undocumented)
-    assert not new, f"public methods without a docstring: {new}"
-    assert not done, f"these have docstrings now: remove them from PENDING_METHOD_DOCSTRINGS: {done}"
+    assert not undocumented, f"public methods without a docstring: {sorted(undocumented)}"

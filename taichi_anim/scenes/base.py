@@ -188,12 +188,20 @@ class Scene:
             lo, hi = float(self.bounds[0][1]), float(self.bounds[1][1])
         return ColorBy(name, lo, hi)
 
-    def render_frame(self, resolution=RESOLUTION, *, color_by: str | None = None, samples: int = 2):
+    def render_frame(
+        self,
+        resolution=RESOLUTION,
+        *,
+        color_by: str | None = None,
+        samples: int = 2,
+        items: list | None = None,
+    ):
         """The picture of the current state, (H, W, 3) uint8 (headless; no display or Vulkan needed):
         spheres at their radius and particles as balls of `point_radius`, shaded; cloth smooth-shaded
-        with a lighter back; props, trails and guides; colour by an attribute with its legend."""
+        with a lighter back; props, trails and guides; colour by an attribute with its legend. items:
+        this instant's frame_content(), if the caller has it already."""
         return render_items(
-            self.frame_content(),
+            self.frame_content() if items is None else items,
             self.view_camera(resolution),
             point_radius=self.point_radius,
             color_by=self.color_spec(color_by),

@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import ParameterError
+
 # Roles tell writers and the renderer what an item is, not how to draw it.
 POINT_ROLES = ("particles", "spheres")
 MESH_ROLES = ("cloth", "surface", "collider")
@@ -90,7 +92,7 @@ class Lines:
 
 def _check_role(role: str, allowed: tuple) -> None:
     if role not in allowed:
-        raise ValueError(f"role must be one of {allowed}, got {role!r}")
+        raise ParameterError(f"role must be one of {allowed}, got {role!r}")
 
 
 def segments_from_pairs(begin, end) -> tuple[np.ndarray, np.ndarray]:

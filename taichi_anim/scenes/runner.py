@@ -147,9 +147,10 @@ def _simulate(scene, stepper, frames, out, formats, progress, viewer, run, tqdm)
                 # The watch may be read only every check_every steps: read it now, so a frame after a
                 # diverged step is never written.
                 stepper.check(state, energy=True)
+                items = None
                 if formats:
                     t0 = time.perf_counter()
-                    items = scene.frame_content()  # once for every format
+                    items = scene.frame_content()  # once for every format and the video
                     if "ply" in formats:
                         scene.export_frame(out, frame, items)
                     if stage is not None:
@@ -157,7 +158,7 @@ def _simulate(scene, stepper, frames, out, formats, progress, viewer, run, tqdm)
                     run["export_s"] += time.perf_counter() - t0
                 if video is not None:
                     t0 = time.perf_counter()
-                    video.append(scene.render_frame(color_by=run["color_by"]))
+                    video.append(scene.render_frame(color_by=run["color_by"], items=items))
                     run["video_times"].append(time.perf_counter() - t0)
                     run["video"] = video.record()
                 run["frames_done"] = frame + 1
