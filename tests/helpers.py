@@ -28,3 +28,20 @@ def run(model, state, integrator, dt: float, steps: int, record=None):
 def spring_energy(xs, vs, k, m, rest):
     """E = m v^2 / 2 + k (x - L0)^2 / 2 for the particle of `spring_particle`."""
     return 0.5 * m * (vs[:, 0] ** 2).sum(-1) + 0.5 * k * (np.linalg.norm(xs[:, 0], axis=-1) - rest) ** 2
+
+
+def kernel_eps() -> float:
+    """Machine epsilon of the precision the kernels run in (f32 or f64)."""
+    from taichi_anim.runtime import np_float
+
+    return float(np.finfo(np_float()).eps)
+
+
+def ulp_tolerance(scale: float, ulps: int = 64) -> float:
+    """An absolute tolerance of `ulps` units in the last place of the kernels' precision at `scale`.
+
+    For comparing two differently compiled kernels that evaluate the same floating-point expression:
+    LLVM may fuse multiply-adds, reorder or vectorise them differently in each (1-2 ulp per operation
+    on AVX-512 CPUs), so only bitwise comparisons of the same kernel (determinism) are exact. 64 ulp
+    covers the tens of roundings of a closest-point or ray-triangle evaluation with a margin."""
+    return ulps * kernel_eps() * scale

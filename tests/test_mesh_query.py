@@ -17,6 +17,8 @@ from taichi_anim.spatial.distance import point_triangle_closest, point_triangle_
 from taichi_anim.spatial.intersect import ray_triangle
 from taichi_anim.spatial.mesh_query import TriangleMesh, triangle_box_overlap, winding_number_np
 
+from .helpers import kernel_eps, ulp_tolerance
+
 MAX_HITS = 256
 # Every f64 test builds its mesh with these capacities and its scanner with NQ query rows: the same field
 # layout gives the same compiled kernels, which Taichi's offline cache then shares between the tests
@@ -220,33 +222,83 @@ def probe_points(v, f, nq, rng):
 
 
 def check_closest_and_rays(mesh, v, f, rng, brute, nq=NQ, max_dist=math.inf, rtol=1e-9):
-    p = probe_points(v, f, nq, rng)
-    got = mesh.closest_points(p, max_dist=max_dist)
-    want = [np.zeros(nq), np.zeros(nq, np.int32), np.zeros((nq, 3))]
-    brute.closest(p, max_dist, *want)
-    for g, w_ in zip(got, want, strict=True):
-        np.testing.assert_array_equal(g, w_)
-    # the distances themselves against the NumPy reference (independent code)
-    found = got[1] >= 0
-    tri = v[f[got[1][found]]]
-    ref = point_triangle_distance_np(p[found], tri[:, 0], tri[:, 1], tri[:, 2])
+    """The tree's closest points and ray casts against the brute-force scan, and the distances against
+    the NumPy reference.
+
+    The tree queries and the scan are different kernels evaluating the same expressions, which LLVM may
+    compile differently (fused multiply-adds, vector width): their results are compared within
+    `ulp_tolerance` of the kernels' precision at the mesh's size, never bit for bit. Where the two
+    report different faces, both must be equally good within that tolerance (a query point on an edge or
+    vertex, a ray through a shared edge); where one hits and the other misses, the hit lies on the
+    triangle's border."""
     scale = np.abs(v).max()
-    np.testing.assert_allclose(got[0][found], ref, rtol=rtol, atol=rtol * scale)
+    tol, rel = ulp_tolerance(scale), ulp_tolerance(1.0)
+    # Moller-Trumbore's u, v lose accuracy as 1/det for grazing rays: a border hit is within sqrt(eps).
+    border = math.sqrt(kernel_eps())
+    p = probe_points(v, f, nq, rng)
+    dist, face, w = mesh.closest_points(p, max_dist=max_dist)
+    ref = [np.zeros(nq), np.zeros(nq, np.int32), np.zeros((nq, 3))]
+    brute.closest(p, max_dist, *ref)
+    rdist, rface, rw = ref
+    found = face >= 0
+    edge_of_range = np.abs(np.where(found, dist, rdist) - max_dist) <= tol
+    assert np.all((found == (rface >= 0)) | edge_of_range)
+    both = found & (rface >= 0)
+    np.testing.assert_allclose(dist[both], rdist[both], rtol=rel, atol=tol)
+    # The closest points themselves (the same point when two faces tie at an edge or vertex).
+    point = np.einsum("ki,kij->kj", w[both], v[f[face[both]]])
+    rpoint = np.einsum("ki,kij->kj", rw[both], v[f[rface[both]]])
+    np.testing.assert_allclose(point, rpoint, rtol=0, atol=tol)
+    assert (face[both] == rface[both]).mean() > 0.8  # ties are the exception, not the rule
+    # the distances themselves against the NumPy reference (independent code)
+    tri = v[f[face[found]]]
+    nref = point_triangle_distance_np(p[found], tri[:, 0], tri[:, 1], tri[:, 2])
+    np.testing.assert_allclose(dist[found], nref, rtol=rtol, atol=rtol * scale)
     d = rng.normal(size=(nq, 3))
     d[:40] = p[:40] - p[40:80]  # rays aimed exactly at vertices, edge midpoints and centroids
     o = p[40:80].copy()
     origins = np.concatenate([o, p[40:]])
     t_max = 4.0
     got = mesh.ray_casts(origins, d, t_max=t_max)
-    want = [np.zeros(nq), np.zeros(nq, np.int32), np.zeros((nq, 2))]
-    brute.rays(origins, d, t_max, *want)
-    np.testing.assert_array_equal(got[0], want[0])
-    np.testing.assert_array_equal(got[1], want[1])
-    np.testing.assert_array_equal(np.stack(got[2:], 1), want[2])
+    t, hit_face, uv = got[0], got[1], np.stack(got[2:], 1)
+    ref = [np.zeros(nq), np.zeros(nq, np.int32), np.zeros((nq, 2))]
+    brute.rays(origins, d, t_max, *ref)
+    rt, rhit, ruv = ref
+    length = np.linalg.norm(d, axis=1)
+    hit, rhit_ = hit_face >= 0, rhit >= 0
+
+    def on_border(uv_, k):
+        bary = np.stack([uv_[k, 0], uv_[k, 1], 1.0 - uv_[k, 0] - uv_[k, 1]], 1)
+        return np.abs(bary).min(1) <= border
+
+    odd = hit != rhit_
+    assert np.all(on_border(uv, odd & hit) | (np.abs(t[odd & hit] - t_max) * length[odd & hit] <= tol))
+    assert np.all(
+        on_border(ruv, odd & rhit_) | (np.abs(rt[odd & rhit_] - t_max) * length[odd & rhit_] <= tol)
+    )
+    both = hit & rhit_
+    np.testing.assert_allclose(t[both] * length[both], rt[both] * length[both], rtol=rel, atol=tol)
+    for tt, ff, bb, k in ((t, hit_face, uv, hit), (rt, rhit, ruv, rhit_)):  # each face holds its hit point
+        corners = v[f[ff[k]]]
+        on_face = (
+            (1.0 - bb[k].sum(1))[:, None] * corners[:, 0]
+            + bb[k, :1] * corners[:, 1]
+            + bb[k, 1:] * corners[:, 2]
+        )
+        np.testing.assert_allclose(
+            on_face, origins[k] + tt[k, None] * d[k], rtol=0, atol=ulp_tolerance(scale, 1024)
+        )
+    same = both & (hit_face == rhit)
+    np.testing.assert_allclose(uv[same], ruv[same], rtol=0, atol=border)
+    assert same.sum() >= 0.8 * both.sum()
     return got
 
 
 def check_box_and_sphere(mesh, v, f, rng, brute, nq=NQ):
+    """Faces overlapping boxes and spheres: the tree query against the scan. A face may be listed by one
+    and not the other only where it touches the box or the sphere within `ulp_tolerance` (point boxes on
+    vertices and edges, zero radii): the two kernels may round the touching test differently."""
+    tol = ulp_tolerance(np.abs(v).max())
     c = probe_points(v, f, nq, rng)
     e = rng.uniform(0.0, 0.3, (nq, 3))
     e[:15] = 0.0  # point boxes on vertices and edges
@@ -254,13 +306,27 @@ def check_box_and_sphere(mesh, v, f, rng, brute, nq=NQ):
     brute.tree_boxes(lo, hi)
     got = brute.lists(nq)
     brute.scan_boxes(lo, hi)
-    assert got == brute.lists(nq)
+    want = brute.lists(nq)
+    for k in range(nq):
+        for face in got[k] ^ want[k]:
+            assert clipped_nonempty(v[f[face]], lo[k] - tol, hi[k] + tol)
+            assert not clipped_nonempty(v[f[face]], lo[k] + tol, hi[k] - tol) or np.any(
+                hi[k] - lo[k] < 2 * tol
+            )
     r = rng.uniform(0.0, 0.3, nq)
     r[:15] = 0.0
     brute.tree_spheres(c, r)
-    got = brute.lists(nq)
+    got_s = brute.lists(nq)
     brute.scan_spheres(c, r)
-    assert got == brute.lists(nq)
+    want_s = brute.lists(nq)
+    for k in range(nq):
+        odd = sorted(got_s[k] ^ want_s[k])
+        if odd:
+            tri = v[f[odd]]
+            dk = point_triangle_distance_np(
+                np.repeat(c[k : k + 1], len(odd), 0), tri[:, 0], tri[:, 1], tri[:, 2]
+            )
+            np.testing.assert_allclose(dk, r[k], rtol=0, atol=tol)
     return lo, hi, got
 
 
