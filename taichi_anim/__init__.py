@@ -6,7 +6,7 @@ Taichi is never initialised on import: call `taichi_anim.init(arch=...)`, or let
 start it on the CPU.
 """
 
-from . import stability
+from . import ode, stability
 from .blobs import BlobField, BlobMesh, IsosurfaceMethod
 from .builder import Builder
 from .cloth import Cloth, ClothMaterial, FabricMaterial
@@ -70,6 +70,7 @@ __all__ = [
     "SolverWarning",
     "StabilityError",
     "StabilityWarning",
+    "ode",
     "stability",
     "Watchdog",
     "AeroTriangles",

@@ -28,6 +28,7 @@ API_MODULES = [
     "taichi_anim.collision.neighbors",
     "taichi_anim.integrators",
     "taichi_anim.integrators.choice",
+    "taichi_anim.ode",
     "taichi_anim.render",
     "taichi_anim.scenes",
     "taichi_anim.scenes.runner",
