@@ -3,16 +3,27 @@
 
 Exit codes: 0 the run completed; 2 a bad parameter, or a backend or viewer that is not available here
 (argparse's own usage errors are 2 as well); 3 output could not be written (disk full, no permission,
-`--out` is a file); 4 the simulation stopped (diverged, or a solver failed or a step was unstable under
-a "raise" policy); 130 interrupted (Ctrl-C). Each failure prints one line on stderr, and run.json in the
-output folder records it (status "failed" or "diverged")."""
+`--out` is a file, another run is using the output folder); 4 the simulation stopped (diverged, or a
+solver failed or a step was unstable under a "raise" policy); 128 + the signal's number when a signal
+stopped the run: 130 SIGINT (Ctrl-C), 143 SIGTERM, 129 SIGHUP. Each failure prints one line on stderr,
+and run.json in the output folder records it (status "failed", "diverged" or "interrupted").
+
+Every option is checked (suffixes, writable places, a run already using the folder) before the scene
+compiles and before the previous run's files are removed, so a rejected command changes nothing."""
 
 import argparse
 import sys
 import warnings
 
 from . import rng, runtime, validate
-from .errors import ConvergenceError, DivergenceError, OutputError, ParameterError, StabilityError
+from .errors import (
+    ConvergenceError,
+    DivergenceError,
+    OutputError,
+    ParameterError,
+    RunInterrupted,
+    StabilityError,
+)
 from .integrators import INTEGRATORS
 
 AUTO_SCENES = ("cloth", "drape", "flag")  # demos that can choose their method (integrator="auto")
@@ -20,7 +31,7 @@ AUTO_SCENES = ("cloth", "drape", "flag")  # demos that can choose their method (
 EXIT_PARAMETER = 2
 EXIT_OUTPUT = 3
 EXIT_SIMULATION = 4
-EXIT_INTERRUPTED = 130
+EXIT_INTERRUPTED = 130  # SIGINT; any stop signal: 128 + its number (RunInterrupted.exit_code)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -31,8 +42,10 @@ def _parser() -> argparse.ArgumentParser:
     d = sub.add_parser(
         "demo",
         help=f"run a demo scene (default: {DEFAULT_SCENE})",
-        epilog="exit codes: 0 complete, 2 bad parameter or unavailable backend, 3 output not written, "
-        "4 simulation stopped (diverged or failed under a raise policy), 130 interrupted",
+        epilog="exit codes: 0 complete, 2 bad parameter or unavailable backend, 3 output not written "
+        "(or the folder is in use by another run), 4 simulation stopped (diverged or failed under a raise "
+        "policy), 128+N stopped by signal N after saving the frames so far (130 SIGINT, 143 SIGTERM, "
+        "129 SIGHUP)",
     )
     d.add_argument("name", nargs="?", default=DEFAULT_SCENE, help="demo to run (see --list)")
     d.add_argument("--list", action="store_true", help="list the demos and exit")
@@ -40,7 +53,8 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument(
         "--out",
         default=None,
-        help="output folder (default out/NAME); the previous run's files there are replaced, others kept",
+        help="output folder (default out/NAME); the previous run's files there are replaced, others kept; "
+        "one run at a time per folder",
     )
     d.add_argument("--arch", choices=runtime.ARCHS, default="cpu", help="Taichi backend (default cpu)")
     d.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -101,9 +115,9 @@ def _int(name: str, text: str) -> int:
 
 
 def _demo(args) -> int:
-    from .io.manifest import check_output_folder
+    from .io.manifest import check_run_folder
     from .scenes import describe, make_scene
-    from .scenes.runner import run_scene, summary_line
+    from .scenes.runner import run_scene, summary_line, video_target
 
     if args.list:
         for name, text in describe().items():
@@ -112,8 +126,9 @@ def _demo(args) -> int:
     if args.frames is not None and args.frames < 1:
         raise ParameterError(f"--frames must be >= 1, got {args.frames}")
     out = args.out or f"out/{args.name}"
-    check_output_folder(out)  # before the backend starts and the scene compiles; creates nothing
-    video = _video_path(args.video)
+    # Before the backend starts and the scene compiles, and before anything is removed; creates nothing.
+    check_run_folder(out)
+    video_target(args.video, out, args.name, option="--video")  # "" stays "": run_scene names it
     viewer = None
     if args.view:
         from .viewer import ViewerUnavailable, vulkan_problem
@@ -174,20 +189,13 @@ def _demo(args) -> int:
         progress=not args.quiet,
         viewer=viewer,
         extra_settings={"seed": args.seed, "arch_requested": args.arch, "arch_choice": runtime.arch_choice()},
-        video=video,
+        video=args.video,
         color_by=args.color_by,
     )
     if viewer is not None:
         viewer.close()
     print(summary_line(summary))
     return 0
-
-
-def _video_path(arg: str | None) -> str | None:
-    """--video's path, checked before the run (.mp4 or .gif); "" for the default, OUT/<scene>.mp4."""
-    if arg and not arg.lower().endswith((".mp4", ".gif")):
-        raise ParameterError(f"--video must name an .mp4 or .gif file, got {arg!r}")
-    return arg
 
 
 def main(argv=None) -> int:
@@ -203,9 +211,17 @@ def main(argv=None) -> int:
         return _fail(e, EXIT_OUTPUT)
     except (DivergenceError, ConvergenceError, StabilityError) as e:
         return _fail(e, EXIT_SIMULATION)
-    except KeyboardInterrupt:
+    except RunInterrupted as e:  # run.json says "interrupted"; the frames before the signal are kept
+        where = f"; the frames so far are in {e.summary['out_dir']}" if e.summary and e.frames_done else ""
+        print(f"taichi-anim: {e}{where}", file=sys.stderr)
+        return e.exit_code
+    except KeyboardInterrupt:  # Ctrl-C before the run started (e.g. while the scene compiled)
         print("taichi-anim: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except OSError as e:  # output trouble a writer did not turn into an OutputError: say why, in one line
+        lines = (e.strerror or str(e)).strip().splitlines()  # the first line: never a tool's command line
+        where = f"{e.filename}: " if e.filename else ""
+        return _fail(OutputError(where + (lines[0] if lines else type(e).__name__)), EXIT_OUTPUT)
 
 
 def _fail(error: BaseException, code: int) -> int:

@@ -1,5 +1,7 @@
 """Errors and warnings raised by taichi_anim: bad parameters, diverging or unconverged simulations,
-steps beyond a method's stability limit, and output that could not be written."""
+steps beyond a method's stability limit, output that could not be written, and runs stopped by a signal."""
+
+import signal
 
 
 class ParameterError(ValueError):
@@ -38,3 +40,49 @@ class SolverWarning(RuntimeWarning):
 
 class StabilityWarning(RuntimeWarning):
     """A step exceeds the explicit method's stability limit; the run goes on (policy "warn")."""
+
+
+class FolderBusyError(OutputError):
+    """Another run holds the output folder (or the video file); `path` is what is busy, `pid` the other
+    run's process id (None if it could not be read)."""
+
+    def __init__(self, message: str, *, path, pid: int | None):
+        super().__init__(message)
+        self.path = path
+        self.pid = pid
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """A run stopped on a signal. A KeyboardInterrupt, so code written for Ctrl-C still catches it.
+
+    signal_number, signal (its name, e.g. "SIGTERM"), forced (a second signal cut a frame short),
+    frames_done and frames (None where not known), exit_code (128 + the signal's number, the shell's
+    convention: 130 for SIGINT, 143 for SIGTERM, 129 for SIGHUP) and summary (the run's summary, set by
+    the runner once run.json is written)."""
+
+    def __init__(self, signum: int, *, frames_done=None, frames=None, forced: bool = False):
+        self.signal_number = int(signum)
+        self.signal = signal_name(signum)
+        self.forced = forced
+        self.frames_done = frames_done
+        self.frames = frames
+        self.summary: dict | None = None
+        text = f"interrupted by {self.signal}"
+        if frames_done is not None:
+            text += f" after {frames_done}" + ("" if frames is None else f" of {frames}") + " frames"
+        if forced:
+            text += " (a second signal: the frame in progress was not finished)"
+        super().__init__(text)
+
+    @property
+    def exit_code(self) -> int:
+        """The command line's exit code: 128 + the signal's number."""
+        return 128 + self.signal_number
+
+
+def signal_name(signum: int) -> str:
+    """ "SIGTERM" for 15, and so on ("signal N" for a number without a name)."""
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"

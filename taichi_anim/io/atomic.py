@@ -82,7 +82,9 @@ def output_error(path: str | os.PathLike, error: OSError) -> OutputError:
     elif error.errno == errno.EISDIR:
         reason = "a folder of that name exists"
     if reason is None:
-        reason = error.strerror or str(error)
+        # The first line only: some tools append their command line and log to the message.
+        lines = (error.strerror or str(error)).strip().splitlines()
+        reason = lines[0] if lines else type(error).__name__
     return OutputError(f"cannot write {path}: {reason}")
 
 
@@ -164,18 +166,28 @@ def _fsync_folder(folder: Path) -> None:
         os.close(fd)
 
 
-def remove_stale_temporaries(folder: str | os.PathLike) -> list[Path]:
-    """Delete the temporaries (TEMPORARY_NAME) that killed runs left in `folder`; return what was removed.
+def remove_stale_temporaries(
+    folder: str | os.PathLike, *, target: str | os.PathLike | None = None
+) -> list[Path]:
+    """Delete the temporaries (TEMPORARY_NAME) that killed runs left in `folder`, or with `target` (a
+    file in some other folder, e.g. a video beside the user's files) only the temporaries of that one
+    name; return what was removed.
 
-    A run owns its output folder, so a temporary found when a run starts belongs to no living writer.
+    Call it while holding the folder's (or the target's) run lock (io/lock.py): a run owns its output
+    folder, so a temporary found when a run starts belongs to no living writer.
     """
     folder = Path(folder)
     removed = []
     if not folder.is_dir():
         return removed
+    own = None if target is None else (Path(target).stem, Path(target).suffix or None)
     for entry in sorted(folder.iterdir()):
-        stale = TEMPORARY_NAME.match(entry.name) and (entry.is_file() or entry.is_symlink())
-        if stale and remove_file(entry):
+        match = TEMPORARY_NAME.match(entry.name)
+        if not match or not (entry.is_file() or entry.is_symlink()):
+            continue
+        if own is not None and (match["stem"], match["ext"]) != own:
+            continue
+        if remove_file(entry):
             removed.append(entry)
     return removed
 

@@ -1,22 +1,34 @@
 """Run a scene for N frames: step, export each frame atomically, render the last one, write run.json.
 
-The output folder follows io/manifest.py's policy: the previous run's files there are removed first,
-run.json says "running" while the run goes on and "complete", "diverged" or "failed" after it, with every
-file written (size and SHA-256) and the run's health (solver, stability and divergence reports). The
-divergence watch is read before each frame is exported, so with `check_every` > 1 no frame after a
-bad step is written.
+The output folder follows io/manifest.py's policy: the run holds the folder's lock (one run per folder;
+a second one stops with FolderBusyError before it touches anything), the previous run's files there are
+removed first, run.json says "running" while the run goes on and "complete", "diverged", "interrupted"
+or "failed" after it, with every file written (size and SHA-256) and the run's health (solver, stability
+and divergence reports). Every option is checked before anything is removed. The divergence watch is
+read before each frame is exported, so with `check_every` > 1 no frame after a bad step is written.
+
+Signals (interrupts.py): SIGINT, SIGTERM and SIGHUP during a run stop it after the frame in progress;
+the frames before are kept (the USD stage and the video are saved with them, as after a divergence),
+the picture of the last frame is skipped, run.json says "interrupted" with the signal, and run_scene
+raises RunInterrupted (a KeyboardInterrupt) carrying the signal and the summary.
 
 Timings: a frame's substeps run as one call (Stepper.advance, launched as Stepper.frame_mode says,
-recorded in run.json) timed with `ti.sync()` before every clock read; the first frame includes JIT
-compilation, reported as compile_s = first frame minus a steady (median) frame; ms_per_step is a steady
-frame over its substeps; export and render time are kept apart.
+recorded in run.json) timed with `ti.sync()` before every clock read. The first frame also compiles the
+kernels: compile_s is the time Taichi spent compiling (or loading from its offline cache) the kernels
+first used in that frame, measured (compile_clock.py), with compile_kernels the number of kernel
+instances; ms_per_frame is a steady frame (the median of the frames after the first; with one frame,
+the first minus its compile time) and ms_per_step that over its substeps; export and render time are
+kept apart.
 
 Video (`video=PATH`): each frame is rendered (Scene.render_frame) after it is exported and appended to
 an MP4 or GIF at the demo's frame rate, 1 / scene.frame_dt (render/video.py), published when the run
-completes; run.json's "video" records its path, fps, frames, size and the milliseconds per rendered
-frame (rendering and encoding; the median after the first, which compiles the renderer)."""
+ends; run.json's "video" records its path, fps, frames, size and the milliseconds per rendered frame
+(rendering and encoding; the median after the first, which compiles the renderer). A video outside the
+output folder is locked on its own (`.clip.mp4.taichi-anim.lock` beside `clip.mp4`), and the
+temporaries a killed run left under its name there are removed."""
 
 import contextlib
+import os
 import time
 from pathlib import Path
 
@@ -24,14 +36,24 @@ import numpy as np
 import taichi as ti
 
 from .. import validate
-from ..errors import DivergenceError, OutputError
-from ..io.atomic import recording_files
+from ..compile_clock import CompileClock
+from ..errors import DivergenceError, OutputError, ParameterError
+from ..interrupts import RunInterrupted, SignalStop, stop_on_signals
+from ..io.atomic import recording_files, remove_stale_temporaries
 from ..io.export import frame_numbering
-from ..io.manifest import error_record, prepare_run_folder, write_manifest
+from ..io.lock import hold_lock, lock_path_for
+from ..io.manifest import (
+    check_output_folder,
+    error_record,
+    locked_run_folder,
+    prepare_run_folder,
+    write_manifest,
+)
 from ..runtime import backend_name
 from .base import Scene
 
 _EXPORT_FORMATS = ("ply", "usd", "both")
+_VIDEO_FORMATS = (".mp4", ".gif")  # what render/video.py writes
 
 
 def run_scene(
@@ -54,35 +76,90 @@ def run_scene(
     video: None, "" (out_dir/<scene>.mp4) or the path of an MP4 or GIF of the run; color_by: what the
     pictures colour points by ("speed", "height", "age", "none"; None: the scene's default).
 
-    Raises what stopped the run (DivergenceError, OutputError, ...) after recording it in run.json."""
-    from tqdm import tqdm
-
+    Every option is checked before anything in out_dir is touched. Raises FolderBusyError (an
+    OutputError) at once if another run holds out_dir (or the video), RunInterrupted (a
+    KeyboardInterrupt) after a SIGINT, SIGTERM or SIGHUP stopped the run between frames, and whatever
+    else stopped the run (DivergenceError, OutputError, ...), each after recording it in run.json."""
     frames = validate.count("frames", frames, 1)
     validate.choice("export_format", export_format, _EXPORT_FORMATS)
-    out = Path(out_dir)
-    removed = prepare_run_folder(out, names=[scene.name])
+    out = check_output_folder(out_dir)
+    video = video_target(video, out, scene.name)
+    options = dict(
+        export=export,
+        export_format=export_format,
+        progress=progress,
+        viewer=viewer,
+        extra_settings=extra_settings,
+        video=video,
+        color_by=color_by,
+    )
+    with stop_on_signals() as stop, contextlib.ExitStack() as held:
+        held.enter_context(locked_run_folder(out))
+        outside = video is not None and video.parent.resolve() != out.resolve()
+        if outside:  # a video beside the user's files: locked on its own, before anything is removed
+            try:
+                video.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as e:
+                raise OutputError(f"cannot write the video {video}: {e.strerror}") from e
+            held.enter_context(hold_lock(lock_path_for(video), what=f"the video {video}"))
+        removed = prepare_run_folder(out, names=[scene.name])
+        if outside:
+            removed += remove_stale_temporaries(video.parent, target=video)
+        return _run(scene, frames, out, removed, stop, **options)
+
+
+def video_target(video, out_dir, name: str, *, option: str = "video") -> Path | None:
+    """The path `video` (None: no video; "": out_dir/<name>.mp4) stands for, checked before a run touches
+    anything: ParameterError naming `option` unless it names an .mp4 or .gif file, OutputError unless it
+    can be written there (a folder of that name, a read-only or impossible place)."""
+    if video is None:
+        return None
+    text = os.fspath(video)
+    path = Path(out_dir) / f"{name}.mp4" if text == "" else Path(text)
+    if text.endswith(("/", os.sep)) or path.suffix.lower() not in _VIDEO_FORMATS:
+        bare = path.name.lower() in _VIDEO_FORMATS  # ".mp4" is a hidden file's name, not a suffix
+        why = " (a suffix without a file name)" if bare else ""
+        raise ParameterError(f"{option} must name an .mp4 or .gif file, got {text!r}{why}")
+    if path.is_dir():
+        raise OutputError(f"cannot write the video {path}: a folder of that name exists")
+    check_output_folder(path.parent, what="the video's folder")
+    return path
+
+
+def _run(scene, frames, out, removed, stop: SignalStop, **options) -> dict:
+    from tqdm import tqdm
+
+    export, export_format = options["export"], options["export_format"]
     stepper = scene.integrator.stepper_for(scene.model)
     settings = {**scene.settings(), "frames": frames, "export": export, "export_format": export_format}
-    settings.update(extra_settings or {})
+    settings.update(options["extra_settings"] or {})
     write_manifest(out, settings, {}, status="running", health=stepper.health.to_dict())
     run = {"frame_times": [], "first_frame_s": None, "export_s": 0.0, "render_s": 0.0, "frames_done": 0}
-    if video == "":
-        video = out / f"{scene.name}.mp4"
-    run.update(video_path=video, color_by=color_by, video_times=[], video=None)
+    run.update(compile_s=None, compile_kernels=None, stop=stop)
+    run.update(video_path=options["video"], color_by=options["color_by"], video_times=[], video=None)
     files: list[dict] = []  # what the run published, in order (see recording_files)
     status, failure = "failed", None
     try:
         with recording_files(out) as files:
             formats = () if not export else ("ply", "usd") if export_format == "both" else (export_format,)
-            _simulate(scene, stepper, frames, out, formats, progress, viewer, run, tqdm)
+            if not stop.requested:  # a signal while the folder was prepared: no frame at all
+                _simulate(
+                    scene, stepper, frames, out, formats, options["progress"], options["viewer"], run, tqdm
+                )
+        if stop.requested:
+            raise stop.interrupted(frames_done=run["frames_done"], frames=frames)
         status = "complete"
     except DivergenceError as e:
         status, failure = "diverged", e
+        raise
+    except RunInterrupted as e:
+        status, failure = "interrupted", e
         raise
     except BaseException as e:
         failure = e
         raise
     finally:
+        stop.forcible = False  # from here on a second signal waits: run.json must be written whole
         summary = _summary(scene, stepper, out, frames, run, files, status == "complete")
         summary["status"] = status
         summary["files_removed"] = len(removed)
@@ -104,6 +181,8 @@ def run_scene(
                 raise
             # Keep the original error; the run.json left behind says "running", i.e. not complete.
             failure.add_note(f"run.json could not be updated: {e}")
+        if isinstance(failure, RunInterrupted):
+            failure.summary = summary
     return summary
 
 
@@ -136,12 +215,14 @@ def _simulate(scene, stepper, frames, out, formats, progress, viewer, run, tqdm)
         with outputs[0], outputs[1] as stage, outputs[2]:
             for frame in bar:
                 ti.sync()
-                t0 = time.perf_counter()
-                scene.advance_frame()
-                ti.sync()
-                dt_wall = time.perf_counter() - t0
-                if run["first_frame_s"] is None:
-                    run["first_frame_s"] = dt_wall
+                first = run["first_frame_s"] is None
+                with CompileClock() if first else contextlib.nullcontext() as clock:
+                    t0 = time.perf_counter()
+                    scene.advance_frame()
+                    ti.sync()
+                    dt_wall = time.perf_counter() - t0
+                if first:
+                    run.update(first_frame_s=dt_wall, compile_s=clock.seconds, compile_kernels=clock.kernels)
                 else:
                     run["frame_times"].append(dt_wall)
                 # The watch may be read only every check_every steps: read it now, so a frame after a
@@ -166,12 +247,16 @@ def _simulate(scene, stepper, frames, out, formats, progress, viewer, run, tqdm)
                     snap = state.snapshot()
                     if not viewer.draw(snap.x, snap.color, scene.point_radius):
                         break
+                if run["stop"].requested:
+                    break  # a signal: stop between frames; the stage and video keep the frames so far
             if stage is not None:
                 t0 = time.perf_counter()
                 stage.save()
                 run["export_s"] += time.perf_counter() - t0
     finally:
         bar.close()
+    if run["stop"].requested:
+        return  # stopping on a signal: no picture (a first render compiles the renderer)
     t0 = time.perf_counter()
     scene.render(out / f"{scene.name}_last.png", color_by=run["color_by"])
     run["render_s"] = time.perf_counter() - t0
@@ -179,8 +264,11 @@ def _simulate(scene, stepper, frames, out, formats, progress, viewer, run, tqdm)
 
 def _summary(scene, stepper, out, frames, run, files, complete: bool) -> dict:
     model, state, integ = scene.model, scene.state, scene.integrator
-    frame_times, first_frame_s = run["frame_times"], run["first_frame_s"]
-    steady = float(np.median(frame_times)) if frame_times else float(first_frame_s or 0.0)
+    frame_times, first_frame_s, compile_s = run["frame_times"], run["first_frame_s"], run["compile_s"]
+    if frame_times:
+        steady = float(np.median(frame_times))
+    else:  # one frame (or none): the first without its compile, where that was measured
+        steady = max(float(first_frame_s or 0.0) - (compile_s or 0.0), 0.0)
     per_step = steady / scene.substeps
     png = [f["path"] for f in files if f["path"].endswith("_last.png")]
     summary = {
@@ -193,7 +281,8 @@ def _summary(scene, stepper, out, frames, run, files, complete: bool) -> dict:
         "ms_per_step": per_step * 1e3,
         "ms_per_frame_mean": float(np.mean(frame_times)) * 1e3 if frame_times else None,
         "first_frame_s": first_frame_s,
-        "compile_s": max((first_frame_s or 0.0) - steady, 0.0),
+        "compile_s": compile_s,
+        "compile_kernels": run["compile_kernels"],
         "frame_mode": stepper.frame_mode(),
         "integrator": integ.name,
         "substeps": scene.substeps,
@@ -267,10 +356,14 @@ def summary_line(s: dict) -> str:
         f"{s['scene']}{status}: {s['frames_done']} frames, {s['steps']} steps on {s['arch']} ({method}): "
         f"{alive}"
         f"{spheres}{health}{s['ms_per_frame']:.2f} ms/frame ({s['ms_per_step']:.3f} ms/step, "
-        f"{s['frame_mode']['mode']}), compile {s['compile_s']:.2f} s, "
+        f"{s['frame_mode']['mode']}), compile {_seconds(s.get('compile_s'))}, "
         f"export {s['export_s']:.2f} s ({s['files_written']} files), picture {s['png']}"
         + _video_note(s.get("video"))
     )
+
+
+def _seconds(value) -> str:
+    return "not measured" if value is None else f"{value:.2f} s"
 
 
 def _video_note(video: dict | None) -> str:
