@@ -20,6 +20,17 @@ from .rng import SEED_LIMIT
 from .runtime import ensure_initialized, np_float
 from .terms import AnchorSpring, Drag, Gravity
 
+# Peak memory [bytes] that finalize() and model.state() add per element (NumPy staging and the Taichi
+# fields, f32; f64 needs more), measured as the growth of the peak resident size for 10^6 particles,
+# 10^6 emitter slots, 6 x 10^6 springs and cloth grids of 500^2 and 1000^2 vertices. Capacities are
+# checked against them before anything is allocated: honest figures, so that real scenes (10^7
+# particles need ~1.4 GB) still pass while absurd ones fail at once instead of after minutes of swapping.
+PARTICLE_BYTES = 140
+SPRING_BYTES = 250
+TRAIL_SAMPLE_BYTES = 48  # float64 staging, its float32 copy and the field: 4 + 4 + 4 floats per sample
+# A grid cloth, all told (NumPy grid, springs and checks, then finalize()): 2.1-2.3 kB measured.
+CLOTH_GRID_BYTES_PER_VERTEX = 2000
+
 
 class Builder:
     """Scene description: particles, emitters, force terms, colliders, trails."""
@@ -56,6 +67,7 @@ class Builder:
         a particle; radius [m] scalar or (N,) (0: a point; > 0: a hard sphere for sphere contacts and
         colliders). Returns their indices."""
         x = validate.finite_array("x", np.atleast_2d(x), (3,))
+        validate.capacity("x", self.particle_count + len(x), bytes_each=0, unit="particles in the scene")
         v = np.zeros_like(x) if v is None else validate.finite_array("v", np.atleast_2d(v), (3,))
         if v.shape != x.shape:
             raise ParameterError(f"v must have the shape of x {x.shape}, got {v.shape}")
@@ -101,6 +113,7 @@ class Builder:
         if sz.shape != (2,) or not np.all(np.isfinite(sz)) or np.any(sz <= 0):
             raise ParameterError(f"size must be two finite lengths > 0 [m], got {size!r}")
         validate.choice("plane", plane, ["xz", "xy"])
+        _check_grid_size(res)  # before NumPy builds anything: 10^4 x 10^4 would take minutes to fail
         vertices, triangles = geometry.cloth_grid(
             origin=validate.vec3("origin", origin), size=tuple(sz), resolution=res, plane=plane
         )
@@ -287,6 +300,7 @@ class Builder:
         except ValueError:
             validate.choice("emitter shape", shape, [s.value for s in EmitterShape])
         capacity = validate.count("capacity", capacity, 1)
+        validate.capacity("capacity", capacity, bytes_each=PARTICLE_BYTES, unit="emitter slots")
         size = (validate.non_negative("radius", radius), 0.0, 0.0)
         if shape == EmitterShape.BOX:
             size = validate.vec3("half_extents", half_extents)
@@ -538,6 +552,7 @@ class Builder:
         pairs_per_vertex: int = 128,
         guard: bool = True,
         broad_phase: str = "auto",
+        start_crossings: str = "raise",
     ) -> None:
         """Contact between every cloth's triangles, within one cloth and between cloths
         (collision/self_contact.py): non-adjacent vertex-triangle and edge-edge pairs are kept
@@ -547,7 +562,10 @@ class Builder:
         nearest primitive) let no step end with two triangles crossing. pairs_per_vertex: capacity of the
         candidate lists; guard=False leaves the bounds out (proximity only: cheaper, may cross);
         broad_phase: the box structure over triangles and edges, "auto" (brute force for small cloths, else
-        a BVH), "brute", "grid", "octree" or "bvh"."""
+        a BVH), "brute", "grid", "octree" or "bvh". start_crossings: "raise" (a ParameterError naming the
+        count and the first crossing pair when a State's first step starts with crossing triangles: the
+        contact cannot untangle them, it would only keep them crossed) or "warn" (run anyway, with a
+        warning and the count in `SelfContact.start_crossing_pairs`)."""
         from .collision.self_contact import self_contact_options
 
         if thickness is None:
@@ -564,6 +582,7 @@ class Builder:
             pairs_per_vertex=pairs_per_vertex,
             guard=guard,
             broad_phase=broad_phase,
+            start_crossings=start_crossings,
         )
 
     def add_particle_trails(self, length: int) -> None:
@@ -575,6 +594,7 @@ class Builder:
         seed = validate.count("seed", seed, 0, SEED_LIMIT - 1)
         if self.particle_count == 0 and not self._emitters:
             raise ParameterError("the scene is empty: add particles or an emitter before finalize()")
+        self._check_size()
         ensure_initialized()
         x = [*self._x]
         v = [*self._v]
@@ -665,6 +685,19 @@ class Builder:
             attachments=self._attachments,
         )
 
+    def _check_size(self) -> None:
+        """Refuse, before allocating, a scene whose counts overflow the kernels' 32-bit indices or whose
+        fields would not fit in the available memory."""
+        n = self.particle_count + sum(es.capacity for es in self._emitters)
+        springs = sum(len(s[0]) for s in self._springs)
+        trail = self._trail_length
+        validate.capacity("particles", n, bytes_each=0, unit="particles and emitter slots")
+        validate.capacity("springs", 2 * springs, bytes_each=0, unit="spring ends")
+        validate.capacity("trail length", n * trail, bytes_each=0, unit="trail samples (particles x length)")
+        need = n * (PARTICLE_BYTES + trail * TRAIL_SAMPLE_BYTES) + springs * SPRING_BYTES
+        what = f"{n} particles and emitter slots, {springs} springs and trails of {trail} samples"
+        validate.memory_fits("finalize()", need, what)
+
     def _contact_domain(self):
         """The container box spheres live in (the bounded grid's domain), or None (hashed grid)."""
         if not self._containers:
@@ -672,6 +705,17 @@ class Builder:
         lo = np.min([c[0] for c in self._containers], axis=0)
         hi = np.max([c[1] for c in self._containers], axis=0)
         return lo, hi
+
+
+def _check_grid_size(res: tuple[int, int]) -> None:
+    """Refuse a cloth grid of `res` vertices whose springs or triangles overflow 32-bit indices or whose
+    construction would not fit in the available memory."""
+    nx, ny = res
+    springs = (nx - 1) * ny + nx * (ny - 1) + 2 * (nx - 1) * (ny - 1) + (nx - 2) * ny + nx * (ny - 2)
+    name = f"resolution {res}"
+    validate.capacity(name, 2 * springs, bytes_each=0, unit="spring ends")
+    validate.capacity(name, 6 * (nx - 1) * (ny - 1), bytes_each=0, unit="triangle corners")
+    validate.capacity(name, nx * ny, bytes_each=CLOTH_GRID_BYTES_PER_VERTEX, unit="cloth vertices")
 
 
 def _motion(motion) -> RigidMotion | None:

@@ -24,6 +24,10 @@ AREA_TOLERANCE = 1e-12  # a triangle of area <= AREA_TOLERANCE * diagonal^2 is d
 DUPLICATE_TOLERANCE = 1e-9  # vertices closer than DUPLICATE_TOLERANCE * diagonal are duplicates
 # An edge is "longest" only if clearly so: the equal edges of an equilateral mesh are no quad diagonals.
 _LONGEST_MARGIN = 1e-9
+# Peak NumPy memory per grid vertex [bytes] (tracemalloc, 1000^2 grid): cloth_grid ~176, grid_springs
+# ~500 beyond the grid. Resolutions are checked against them before the arrays are built.
+_GRID_BYTES_PER_VERTEX = 170
+_GRID_SPRING_BYTES_PER_VERTEX = 490
 
 
 class SpringFamily(enum.Enum):
@@ -64,7 +68,7 @@ def cloth_grid(
     triangles 2q and 2q+1 (q = j*(nx-1) + i), split along its diagonal (i,j)-(i+1,j+1) and wound
     counter-clockwise seen from +y ("xz") or +z ("xy").
     """
-    nx, ny = _resolution(resolution)
+    nx, ny = _resolution(resolution, _GRID_BYTES_PER_VERTEX)
     width, depth = (validate.positive(f"size[{k}]", s) for k, s in enumerate(_pair("size", size)))
     start = np.asarray(validate.vec3("origin", origin))
     if plane not in ("xz", "xy"):
@@ -92,7 +96,7 @@ def grid_springs(resolution) -> ClothSprings:
     Stretch: horizontal and vertical neighbours, (nx-1)ny + nx(ny-1). Shear: both diagonals of every quad,
     2(nx-1)(ny-1). Bend: vertices two apart horizontally and vertically, (nx-2)ny + nx(ny-2).
     """
-    nx, ny = _resolution(resolution)
+    nx, ny = _resolution(resolution, _GRID_SPRING_BYTES_PER_VERTEX)
     index = np.arange(nx * ny, dtype=np.int64).reshape(ny, nx)  # index[j, i] = j*nx + i
     blocks = {
         SpringFamily.STRETCH: [(index[:, :-1], index[:, 1:]), (index[:-1, :], index[1:, :])],
@@ -221,9 +225,14 @@ def _pair(name: str, value) -> tuple:
     return tuple(value)
 
 
-def _resolution(resolution) -> tuple[int, int]:
+def _resolution(resolution, bytes_each: float) -> tuple[int, int]:
     nx, ny = _pair("resolution", resolution)
-    return validate.count("resolution[0]", nx, 2), validate.count("resolution[1]", ny, 2)
+    nx, ny = validate.count("resolution[0]", nx, 2), validate.count("resolution[1]", ny, 2)
+    name = f"resolution {(nx, ny)}"
+    # Triangles hold 6 vertex indices per vertex (springs up to 12 ends): the kernels index them with int32.
+    validate.capacity(name, 6 * (nx - 1) * (ny - 1), bytes_each=0, unit="triangle corners")
+    validate.capacity(name, nx * ny, bytes_each=bytes_each, unit="grid vertices")
+    return nx, ny
 
 
 def _unique_springs(groups: list[tuple[SpringFamily, np.ndarray]], vertex_count: int) -> ClothSprings:

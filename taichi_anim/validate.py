@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Iterable, Mapping
 
 import numpy as np
@@ -11,6 +12,11 @@ from .errors import ParameterError
 
 # Counters and indices run in 32-bit integers in the kernels (Taichi's default_ip).
 INT32_MAX = 2**31 - 1
+# cgroup files that bound a container's memory below what the machine has (v2, then v1).
+_CGROUP_LIMITS = (
+    ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+    ("/sys/fs/cgroup/memory/memory.limit_in_bytes", "/sys/fs/cgroup/memory/memory.usage_in_bytes"),
+)
 
 
 def number(name: str, value) -> float:
@@ -271,3 +277,95 @@ def mass_fits(name: str, mass: np.ndarray, dtype) -> None:
             f"number ({tiny:.3g}): it would round to 0 (a pinned particle) or its inverse overflow; "
             f"rescale the scene or use precision='f64'"
         )
+
+
+# ------------------------------------------------------------------------------------------- capacities
+
+
+def available_memory() -> int | None:
+    """Bytes the process can still allocate without swapping: the kernel's MemAvailable (/proc/meminfo;
+    elsewhere free physical pages, sysconf SC_AVPHYS_PAGES), capped by what an address-space limit
+    (RLIMIT_AS) and a container's cgroup limit leave. None where nothing can be read (no check is made)."""
+    avail = None
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    avail = int(line.split()[1]) * 1024
+                    break
+    except (OSError, ValueError, IndexError):
+        pass
+    if avail is None:
+        try:
+            avail = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        except (AttributeError, OSError, ValueError):
+            return None
+    try:  # an address-space limit (ulimit -v) fails allocations beyond it, whatever the machine has
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if soft != resource.RLIM_INFINITY:
+            avail = min(avail, max(soft - _virtual_size(), 0))
+    except (ImportError, OSError, ValueError):
+        pass
+    for limit_file, usage_file in _CGROUP_LIMITS:
+        try:
+            with open(limit_file, encoding="ascii") as f, open(usage_file, encoding="ascii") as g:
+                limit, usage = f.read().strip(), g.read().strip()
+            if limit.isdigit() and usage.isdigit():
+                avail = min(avail, max(int(limit) - int(usage), 0))
+                break
+        except OSError:
+            continue
+    return avail
+
+
+def _virtual_size() -> int:
+    """The process's virtual memory size [bytes] (VmSize), 0 where unknown."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("VmSize:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return 0
+
+
+def human_bytes(n: float) -> str:
+    """`n` bytes in binary units: 1536 -> '1.5 KiB'."""
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if abs(n) < 1024.0 or unit == "PiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024.0
+    return f"{n} B"  # not reached
+
+
+def memory_fits(name: str, need: int, what: str) -> None:
+    """Raise if `need` bytes (for `what`, which `name` asked for) exceed the memory available now."""
+    avail = available_memory()
+    if avail is not None and need > avail:
+        raise ParameterError(
+            f"{name}: {what} need about {human_bytes(need)} ({need} bytes), but only {human_bytes(avail)} "
+            f"({avail} bytes) of memory are available"
+        )
+
+
+def capacity(
+    name: str,
+    value,
+    *,
+    bytes_each: float,
+    limit: int = INT32_MAX,
+    unit: str = "elements",
+    why: str = f"that 32-bit Taichi indices (int32, at most {INT32_MAX}) can address",
+) -> int:
+    """`value` as an int if it is a whole count >= 0 that fits `limit` (by default the int32 range of
+    Taichi indices; `why` says where a smaller limit comes from) and whose `bytes_each` per element fit
+    in the available memory, else raise ParameterError naming `name`, the count, the bytes needed and
+    the bytes available. Call it before allocating anything sized by the count."""
+    n = count(name, value, 0, 2**63 - 1)
+    if n > limit:
+        raise ParameterError(f"{name}: {n} {unit} exceed {limit}, the most {why}")
+    memory_fits(name, int(math.ceil(n * bytes_each)), f"{n} {unit} (~{bytes_each:.0f} bytes each)")
+    return n

@@ -20,10 +20,13 @@ the grid (they are cut and capped there): give bounds a margin of one blob radiu
 Gather by block: each flagged block queries the neighbour structure once, around its centre, and adds
 the blobs of the particles found to its own nodes (only its thread writes them: no float atomics, and the
 sum order is the structure's fixed order, so the result is reproducible). The Gaussian factorises over
-the axes, so 3 x BLOCK exponentials per particle and block serve its BLOCK^3 nodes. benchmarks/blobs.py
-measured it 3x faster than a gather per node (each node querying its particles, one exponential per
-pair): 8.9 against 27 ms at 128^3, 34 against 102 ms at 256^3 for a 1000-particle jet.
+the axes, so 3 x BLOCK exponentials per particle and block serve its BLOCK^3 nodes. The study in
+benchmarks/results/blobs_study.md measured it 3x faster than a gather per node (each node querying its
+particles, one exponential per pair): 8.9 against 27 ms at 128^3, 34 against 102 ms at 256^3 for a
+1000-particle jet.
 """
+
+import math
 
 import numpy as np
 import taichi as ti
@@ -82,6 +85,11 @@ class BlobField:
         self.truncation_bound_per_particle = float(np.exp(-(self.cutoff**2)))
         self.block_dims = tuple((n + BLOCK - 1) // BLOCK for n in self.dims)
         self.block_count = int(np.prod(self.block_dims))
+        fb = np.dtype(np_float()).itemsize
+        # psi and the isosurface's int32 edge index per node; the particles' staging field and buffer.
+        nodes = math.prod(self.dims)
+        validate.capacity(f"resolution {resolution}", nodes, bytes_each=fb + 4, unit="grid nodes")
+        validate.capacity("capacity", self.capacity, bytes_each=6 * fb, unit="particles")
 
         self.psi = ti.field(float, self.dims)
         self.block_flag = ti.field(ti.i32, self.block_count)

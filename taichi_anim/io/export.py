@@ -15,7 +15,9 @@ import numpy as np
 
 from .. import validate
 from ..errors import OutputError, ParameterError
-from .atomic import atomic_path, check_complete, ply_layout, text_rows_problem
+from . import read_guard
+from .atomic import atomic_path, ply_layout, text_rows_problem
+from .obj_scan import scan_obj
 
 __all__ = ["atomic_path"]  # re-exported: renderers and viewers publish through it too
 
@@ -296,12 +298,9 @@ def _write_empty_point_cloud(tmp: Path, fmt: str, pos_dtype: np.dtype, has_color
 
 
 def _existing(path, what: str) -> Path:
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no such file: {path}")
-    # Check headers against sizes ourselves: Open3D prints a complaint and returns partial data.
-    check_complete(path, what)
-    return path
+    # Regular files only, headers against sizes, bounded lines (read_guard): Open3D would block on a
+    # FIFO, read /dev/zero until memory runs out, and return partial data from a truncated file.
+    return read_guard.check_input(path, what)
 
 
 def _quiet():
@@ -484,6 +483,8 @@ def read_triangle_mesh(path: str | os.PathLike) -> dict[str, np.ndarray]:
             "vertices": np.asarray(mesh.vertices, dtype=np.float64),
             "triangles": np.asarray(mesh.triangles, dtype=np.int64).reshape(-1, 3),
         }
+        # Layouts read_guard cannot walk (polygons of mixed sizes) reach here unchecked.
+        read_guard.check_indices(path, "face", out["triangles"], len(out["vertices"]))
         if mesh.has_vertex_normals():
             out["vertex_normals"] = np.asarray(mesh.vertex_normals, dtype=np.float64)
         if mesh.has_vertex_colors():
@@ -496,42 +497,27 @@ def read_triangle_mesh(path: str | os.PathLike) -> dict[str, np.ndarray]:
     raise ParameterError(f"{path} is not a readable triangle mesh (unknown format, corrupt or truncated)")
 
 
-_OBJ_KEYWORDS = {"v", "vn", "vt", "vp", "f", "l", "p", "o", "g", "s", "mtllib", "usemtl"}
-
-
 def _read_obj(path: Path) -> dict[str, np.ndarray]:
-    # Open3D 0.20's OBJ readers are fragile: the tensor one segfaults on an OBJ without vertices and
-    # raises IndexError on one without faces; the legacy one drops quads. Scan first and call Open3D
-    # only for files with both vertices and faces.
-    counts = {"v": 0, "f": 0}
-    vertex_rows = []
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        for line in fh:
-            key = line.split(maxsplit=1)[0] if line.strip() else "#"
-            if key.startswith("#"):
-                continue
-            if key not in _OBJ_KEYWORDS:
-                raise ParameterError(f"{path} is not an OBJ file: unexpected line {line.strip()[:60]!r}")
-            if key in counts:
-                counts[key] += 1
-            if key == "v":
-                vertex_rows.append(line.split()[1:4])
-    if counts["f"] == 0:
-        try:
-            v = np.array(vertex_rows, dtype=np.float64).reshape(-1, 3)
-        except ValueError as e:
-            raise ParameterError(f"{path} has malformed vertex lines") from e
-        return {"vertices": v, "triangles": np.zeros((0, 3), dtype=np.int64)}
+    # Open3D 0.20's OBJ readers are fragile: the tensor one segfaults on an OBJ without vertices, raises
+    # IndexError on one without faces or with an index out of range; the legacy one drops quads. Scan
+    # first (bounded lines, every index checked) and call Open3D only for files with vertices and faces.
+    scan = scan_obj(path)
+    if scan.vertices is not None:  # no faces
+        return {"vertices": scan.vertices, "triangles": np.zeros((0, 3), dtype=np.int64)}
     import open3d as o3d
 
-    with _quiet():
-        mesh = o3d.t.io.read_triangle_mesh(str(path))
+    try:
+        with _quiet():
+            mesh = o3d.t.io.read_triangle_mesh(str(path))
+    except (IndexError, RuntimeError) as e:  # what the scan did not foresee, named with the file
+        raise ParameterError(f"{path} is not a readable OBJ mesh (Open3D: {e})") from None
     if "positions" not in mesh.vertex or mesh.vertex.positions.shape[0] == 0:
         raise ParameterError(f"{path} is not a readable OBJ mesh")
     out = {
         "vertices": mesh.vertex.positions.numpy().astype(np.float64),
         "triangles": mesh.triangle.indices.numpy().astype(np.int64).reshape(-1, 3),
     }
+    read_guard.check_indices(path, "face", out["triangles"], len(out["vertices"]))
     if "normals" in mesh.vertex:
         out["vertex_normals"] = mesh.vertex.normals.numpy().astype(np.float64)
     if "colors" in mesh.vertex:
@@ -585,6 +571,7 @@ def read_line_set(path: str | os.PathLike) -> dict[str, np.ndarray]:
             "points": np.asarray(ls.points, dtype=np.float64),
             "lines": np.asarray(ls.lines, dtype=np.int64).reshape(-1, 2),
         }
+        read_guard.check_indices(path, "edge", out["lines"], len(out["points"]))
         if ls.has_colors():
             out["colors"] = np.asarray(ls.colors, dtype=np.float64)
         return out

@@ -16,6 +16,7 @@ from enum import Enum
 
 import taichi as ti
 
+from .. import validate
 from ..rng import uniform
 from ..runtime import data_oriented, serial_loops
 
@@ -94,6 +95,8 @@ class Emitter:
         self.index = index
         self.u, self.w = _basis(settings.direction)
         end = start + self.capacity
+        # Slots are int32 indices in the kernels (the Builder refuses larger scenes before this).
+        validate.capacity("capacity", end, bytes_each=0, unit="particle slots up to this emitter's last")
         self.word_lo, self.word_hi = start >> 5, (end - 1) >> 5
         # Bits of the first and last word that belong to this emitter's slot range.
         self.mask_lo = (0xFFFFFFFF << (start & 31)) & 0xFFFFFFFF

@@ -26,8 +26,8 @@ quality: the surface-area cost C = sum over internal nodes of A(node) / A(root) 
 "Heuristics for ray tracing using space subdivision", 1990: the expected number of internal nodes a
 random ray through the root box visits). Refit lets it grow as primitives move apart from their Morton
 neighbours. `update()` refits, and rebuilds when C exceeds `rebuild_ratio` times its value right after
-the last build (benchmarks/bvh.py measures the cost of refit against rebuild and query speed as a mesh
-deforms, which set the default).
+the last build (benchmarks/results/bvh_study.md records the cost of refit against rebuild and query
+speed as a mesh deforms, which set the default).
 
 Queries from Taichi scope (`visit(i, prim, ret)` gets the original primitive index; `i` is the caller's
 own index passed through, `ret` its accumulator, passed by reference): `for_each_overlap(i, lo, hi, ...)`
@@ -43,7 +43,7 @@ from taichi.lang import impl
 from .. import validate
 from ..collision.prefix_sum import PrefixSum
 from ..errors import ParameterError
-from ..runtime import backend_name, data_oriented, serial_loops
+from ..runtime import backend_name, data_oriented, float_dtype, serial_loops
 from .bounds import INV_DIR_PARALLEL, aabb_overlap, aabb_point_distance_sq, aabb_ray, aabb_surface_area
 
 STACK_SIZE = 64
@@ -55,8 +55,9 @@ SORT_BLOCK = 1024  # keys histogrammed/scattered serially per block; blocks run 
 # Default of update(): rebuild once the refit tree's surface-area cost exceeds this times its cost
 # right after the last build. With one box query per primitive and step (self-contact), a rebuild paid
 # for itself from a cost ratio of ~1.5 on triangles moving apart at random (query slowdown ~ the ratio)
-# and of ~1.8 on a crumpling sheet (slowdown 1.1 there, 1.3 at ratio 3) (benchmarks/bvh.py, "refit or
-# rebuild", 10^5 triangles). Fewer queries per step favour a higher ratio.
+# and of ~1.8 on a crumpling sheet (slowdown 1.1 there, 1.3 at ratio 3)
+# (benchmarks/results/bvh_study.md, "refit or rebuild", 10^5 triangles). Fewer queries per step favour a
+# higher ratio.
 REBUILD_RATIO = 1.5
 
 
@@ -91,6 +92,11 @@ def morton3(u):
     return ti.cast(code, ti.i32)
 
 
+def float_bytes() -> int:
+    """Bytes of one float in the fields (4 for f32, 8 for f64), for capacity checks."""
+    return 8 if float_dtype() == ti.f64 else 4
+
+
 @data_oriented
 class BVH:
     """Linear BVH over up to `capacity` boxes (Karras 2012).
@@ -106,6 +112,15 @@ class BVH:
 
     def __init__(self, capacity: int, *, rebuild_ratio: float = REBUILD_RATIO):
         self.capacity = validate.count("capacity", capacity, 1)
+        # Per box: 19 floats (boxes, node records, costs) and 46 bytes of int32 ids, codes and links.
+        validate.capacity(
+            "capacity",
+            self.capacity,
+            bytes_each=19 * float_bytes() + 46,
+            limit=(validate.INT32_MAX + 1) // 2,
+            unit="boxes",
+            why=f"for which the BVH's 2 capacity - 1 nodes keep int32 indices (at most {validate.INT32_MAX})",
+        )
         self.rebuild_ratio = validate.positive("rebuild_ratio", rebuild_ratio)
         if self.rebuild_ratio <= 1.0:
             raise ParameterError(f"rebuild_ratio must be > 1, got {rebuild_ratio!r}")

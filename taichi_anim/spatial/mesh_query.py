@@ -31,7 +31,7 @@ from ..runtime import data_oriented, float_dtype, np_float
 from .bounds import aabb_point_distance_sq, aabb_ray, aabb_triangle, fp_epsilon
 from .distance import point_triangle_closest
 from .intersect import ray_triangle
-from .lbvh import BVH, ray_inv_dir
+from .lbvh import BVH, float_bytes, ray_inv_dir
 
 
 def _query_types():
@@ -170,6 +170,9 @@ class TriangleMesh:
         v, f = check_mesh(vertices, faces)
         self.vertex_capacity = validate.count("vertex_capacity", vertex_capacity or len(v), 1)
         self.face_capacity = validate.count("face_capacity", face_capacity or len(f), 1)
+        fb = float_bytes()
+        validate.capacity("vertex_capacity", self.vertex_capacity, bytes_each=3 * fb, unit="vertices")
+        validate.capacity("face_capacity", self.face_capacity, bytes_each=12 + 19 * fb + 46, unit="faces")
         self.vertex_x = ti.Vector.field(3, float, self.vertex_capacity)
         self.face_vertices = ti.Vector.field(3, ti.i32, self.face_capacity)
         self.bvh = BVH(self.face_capacity)

@@ -27,6 +27,7 @@ from ..collision.prefix_sum import PrefixSum
 from ..errors import ParameterError
 from ..runtime import data_oriented, serial_loops
 from .bounds import aabb_overlap, aabb_point_distance_sq
+from .lbvh import float_bytes
 
 MAX_LEVEL = 16  # 2^16 cells per axis at the finest level; the cell coordinates stay well inside i32
 LEVELS = MAX_LEVEL + 1
@@ -49,6 +50,15 @@ class Octree:
 
     def __init__(self, capacity: int):
         self.capacity = validate.count("capacity", capacity, 1)
+        # Per box: 12 floats and 72 bytes of int32 cells, ids and 4 hash buckets (4 capacity + 3 starts).
+        validate.capacity(
+            "capacity",
+            self.capacity,
+            bytes_each=12 * float_bytes() + 72,
+            limit=(validate.INT32_MAX - 3) // 4,
+            unit="boxes",
+            why=f"whose 4 capacity + 3 hash buckets keep int32 indices (at most {validate.INT32_MAX})",
+        )
         c = self.capacity
         self.prim_lo = ti.Vector.field(3, float, c)
         self.prim_hi = ti.Vector.field(3, float, c)

@@ -1,6 +1,6 @@
 """Choice of the structure that answers box and ball queries over N boxes: brute force, the uniform loose
 grid (`tri_grid.py`), the loose octree (`octree.py`) or the linear BVH (`lbvh.py`), from the crossovers
-measured by benchmarks/bvh.py (as `collision/neighbors.py` chooses its grid from CROSSOVER_N).
+measured in benchmarks/results/bvh_study.md (as `collision/neighbors.py` chooses its grid from CROSSOVER_N).
 
 All four share one protocol: `prim_lo` / `prim_hi` (Vector fields (capacity, 3) [m]) that the caller
 fills, `build(n)`, `refit()`, `update() -> bool`, and from Taichi scope
@@ -16,11 +16,11 @@ from .. import validate
 from ..errors import ParameterError
 from ..runtime import data_oriented
 from .bounds import aabb_overlap, aabb_point_distance_sq
-from .lbvh import BVH
+from .lbvh import BVH, float_bytes
 from .octree import Octree
 from .tri_grid import TriGrid
 
-# Cost model fitted to benchmarks/bvh.py on this project's 2-core CPU (results/bvh.md, "cost model"):
+# Cost model fitted to benchmarks/results/bvh_study.md on this project's 2-core CPU ("cost model"):
 # brute force costs queries x boxes x BRUTE_TEST_S; the BVH a build, BVH_BUILD_FIXED_S +
 # boxes x BVH_BUILD_PER_BOX_S, plus queries x BVH_QUERY_S (for queries that meet ~10 boxes).
 BRUTE_TEST_S = 9.6e-10
@@ -48,6 +48,7 @@ class BruteBoxes:
 
     def __init__(self, capacity: int):
         self.capacity = validate.count("capacity", capacity, 1)
+        validate.capacity("capacity", self.capacity, bytes_each=6 * float_bytes(), unit="boxes")
         self.prim_lo = ti.Vector.field(3, float, self.capacity)
         self.prim_hi = ti.Vector.field(3, float, self.capacity)
         self.count = ti.field(ti.i32, ())

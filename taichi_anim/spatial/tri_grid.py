@@ -2,7 +2,7 @@
 Ulrich 2000). Every box goes into the cell of its centre at one level, the deepest whose cell side is
 >= the largest box extent, so a cell's loose box (twice the cell) holds each of its boxes; cells are
 hashed and counting-sorted as the octree's. The classic grid's weakness is kept on purpose: one large
-box makes every cell large (the comparison in benchmarks/bvh.py shows it)."""
+box makes every cell large (the comparison in benchmarks/results/bvh_study.md shows it)."""
 
 from ..runtime import data_oriented
 from .octree import Octree
