@@ -130,19 +130,20 @@ class State:
         self.watch_claim[None] = 0
         self.watch_record[None] = [0, 0, 0]
 
-    def save(self, into: "State") -> None:
+    def save(self, into: "State", *, whole_trail: bool = False) -> None:
         """Copy everything a step changes into `into`, a State of the same model: positions, velocities,
         birth and death times, free-slot bits, emitter cursors and carries, the trail column the next step
-        writes, the trail head, time and step count (one kernel launch)."""
-        _copy_state(self, into, self.trail_head)
+        writes (every column with whole_trail: for a rollback over several steps), the trail head, time
+        and step count (one kernel launch)."""
+        _copy_state(self, into, self.trail_head, whole_trail)
         into.time, into.step_count, into.trail_head = self.time, self.step_count, self.trail_head
         into.emit_carry = list(self.emit_carry)
         into.energy_start, into.energy_step = self.energy_start, self.energy_step
 
     def restore(self, source: "State") -> None:
         """Return to the state saved in `source` (filled by `self.save(source)`) and clear the
-        divergence record."""
-        source.save(self)
+        divergence record (every trail column is copied: a rollback may span several steps)."""
+        source.save(self, whole_trail=True)
         self.watch_reset()
 
     def check_finite(self) -> None:
@@ -194,7 +195,7 @@ class State:
 
 
 @ti.kernel
-def _copy_state(src: ti.template(), dst: ti.template(), head: ti.i32):
+def _copy_state(src: ti.template(), dst: ti.template(), head: ti.i32, whole_trail: ti.template()):
     ti.loop_config(serialize=src.model.serial)
     for i in range(src.particle_x.shape[0]):
         dst.particle_x[i] = src.particle_x[i]
@@ -203,7 +204,11 @@ def _copy_state(src: ti.template(), dst: ti.template(), head: ti.i32):
             dst.particle_birth[i] = src.particle_birth[i]
             dst.particle_death[i] = src.particle_death[i]
         if ti.static(src.trail_length > 0):
-            dst.trail[i, head] = src.trail[i, head]  # the only column a step writes
+            if ti.static(whole_trail):
+                for k in range(src.trail_length):
+                    dst.trail[i, k] = src.trail[i, k]
+            else:
+                dst.trail[i, head] = src.trail[i, head]  # the only column a step writes
     if ti.static(src.has_lifetimes):
         for w in range(src.particle_free.shape[0]):
             dst.particle_free[w] = src.particle_free[w]

@@ -22,7 +22,7 @@ from .watchdog import Watchdog, watch_particle
 MAX_STABLE_SPLIT = 4096  # the most substeps the retry policy takes from the stability estimate
 # A frame of substeps of a fusable method runs as one serial kernel on the CPU below this much work
 # (particles + element entries): there a parallel loop costs more than its work (the second core takes
-# ~80 us to join a loop here); above it, one parallel launch per substep (benchmarks/frame_fusion.py:
+# ~80 us to join a loop here); above it, one parallel launch per substep (benchmarks/results/frame_fusion.md:
 # serial frame faster up to 80^2 cloth, 82k work; launches from 96^2, 118k).
 FRAME_SERIAL_BELOW = 100_000
 
@@ -33,10 +33,15 @@ def finish_particle(
 ):
     """The end of a step [t, t + h] for particle i, fused into a method's last kernel: colliders against
     the step's start point (x0, v0), attached particles onto their targets, the divergence watchdog
-    (non-finite or out-of-bounds results, watchdog.py), and the write."""
+    (non-finite or out-of-bounds results, watchdog.py), and the write.
+
+    Pinned particles (mass 0) are kinematic, as in Blender, Houdini Vellum and Newton: colliders never
+    move them, even one placed inside a collider (State.set_positions); they go only where their
+    velocity or their attachment's target takes them."""
     x, v = x1, v1
     if ti.static(model.collider_count > 0):
-        x, v = collide(model.colliders, mode, x0, v0, x1, v1, t, h, model.radius(i), model.rest_speed)
+        if model.inv_mass(i) > 0.0:
+            x, v = collide(model.colliders, mode, x0, v0, x1, v1, t, h, model.radius(i), model.rest_speed)
     if ti.static(model.attachment_count > 0):
         x, v = follow_attachments(model.attachments, model.particle_attachment, i, x0, x, v, t + h, h)
     watch_particle(state, i, x, v, t + h, step)
@@ -52,7 +57,11 @@ class Stepper:
     them). On divergence the policy (`policy.divergence`) decides: "raise" (DivergenceError); "retry":
     roll the state back to the step's start and redo the step in 2, 4, ... substeps, up to
     `policy.max_retries` halvings; "implicit": roll back and redo it with implicit Euler (in 1, 2, ...
-    substeps, `max_retries` attempts). A recovery is a "divergence_recovered" event in `health`, and the
+    substeps, `max_retries` attempts). Under every policy a DivergenceError leaves the state at the last
+    good step that was checked (with `check_every` = 1, the step before the bad one; with k > 1, the
+    last multiple of k before it): positions, velocities, lifetimes, emission, trails, time and step
+    count, bitwise, from a copy taken at the start of each checked step (one copy kernel per step, or per
+    frame of fused substeps). A recovery is a "divergence_recovered" event in `health`, and the
     substeps (and method) that worked are kept for the following steps until dt changes. With a recovering
     policy the watchdog is read after every step (the rollback point is the step's start), the energy
     (where the scene has one) is evaluated every step (`watchdog.energy_every` = 1; a larger value trades
@@ -77,10 +86,13 @@ class Stepper:
         self._guarded_dt = None  # the step the stability guard last checked
         self._frame_mode = None  # how a frame of substeps is launched (frame_mode), chosen on first use
         self.watchdog = Watchdog(model)
-        # Recovering policies: a backup State (the rollback point) and, for "implicit", the fallback
-        # method, both made now so that nothing is allocated mid-run.
+        # The rollback point (a State saved at the last good checked step, `_keep_good`), under every
+        # policy: a DivergenceError leaves the state there; recovering policies also redo the step from
+        # it. For "implicit", the fallback method too; both made now so that nothing is allocated mid-run.
         recovering = self.policy.divergence != "raise"
-        self._backup = State(model) if recovering else None
+        self._recovering = recovering
+        self._backup = State(model)
+        self._backup_of = None  # weak reference to the State the backup was saved from
         self._fallback = None
         if self.policy.divergence == "implicit":
             from .integrators.implicit_euler import IntegratorImplicitEuler
@@ -129,12 +141,17 @@ class Stepper:
             overlap = self.contacts.overlap_stats(model, state)[0]  # spheres placed overlapping
             self.watchdog.separation_speed = overlap / dt
         self.watchdog.arm(state, dt)
-        if self._backup is None:
-            self._step(state, dt, self.integrator, 1)
+        if not self._recovering:
+            self._keep_good(state)
+            try:
+                self._step(state, dt, self.integrator, 1)
+            except BaseException:  # a solver giving up, Ctrl-C: back to the last good step
+                self._roll_back(state)
+                raise
             if state.step_count % self.integrator.check_every == 0:
                 self.check(state)
             return
-        state.save(self._backup)
+        self._keep_good(state, always=True)  # every step: the step's start is the retry point
         method, split = self._recovery or (self.integrator, 1)
         try:
             error = self._attempt(state, dt, method, split)
@@ -144,7 +161,10 @@ class Stepper:
             state.restore(self._backup)
             raise
         if self.self_contact is not None and state.step_count % self.integrator.check_every == 0:
-            self.self_contact.read_stats()
+            try:
+                self.self_contact.read_stats()
+            except DivergenceError as e:  # a pair list overflowed: back to the step's start
+                raise self._roll_back(state, e) from None
 
     def advance(self, state, h: float, count: int) -> None:
         """`count` steps of h [s]: the same as `count` calls of step(state, h), launched as frame_mode
@@ -204,7 +224,7 @@ class Stepper:
                 ("trails", model.trail_length > 0),
                 (
                     f"policy divergence={self.policy.divergence!r} (rollback per step)",
-                    self._backup is not None,
+                    self._recovering,
                 ),
             )
             if present
@@ -226,6 +246,7 @@ class Stepper:
             self._guarded_dt = h
             self._recovery = None
         self.watchdog.arm(state, h * n)
+        self._keep_good(state)
         method, model = self.integrator, self.model
         first = state.step_count
         if mode == "serial_frame":
@@ -249,12 +270,52 @@ class Stepper:
         """Read the divergence watch now (a device sync): raises DivergenceError if a step so far
         diverged (non-finite or out-of-bounds particles; energy growth, evaluated every
         `watchdog.energy_every` steps, or now with energy=True). The runner calls it with energy=True
-        before exporting a frame, so nothing after a bad step is written."""
+        before exporting a frame, so nothing after a bad step is written. On an error the state is first
+        rolled back to the last good checked step (`_roll_back`), under every policy."""
         error = self._divergence(state) or self.watchdog.energy_error(state, now=energy)
+        if error is None and self.self_contact is not None:
+            try:
+                self.self_contact.read_stats()
+            except DivergenceError as e:  # a pair list overflowed
+                error = e
         if error is not None:
-            raise error
-        if self.self_contact is not None:
-            self.self_contact.read_stats()
+            raise self._roll_back(state, error)
+
+    def _keep_good(self, state, *, always: bool = False) -> None:
+        """Save `state` as the rollback point when it is at a checked step (a multiple of
+        `check_every`, whose watch was read and found good), or when it is not the State saved last (its
+        first step here; `always`: every step, for the recovering policies). One copy kernel: positions,
+        velocities, lifetimes, emission and trails (State.save), a memcpy of the state's fields."""
+        every = 1 if always else self.integrator.check_every
+        saved = None if self._backup_of is None else self._backup_of()
+        if saved is not state or state.step_count % every == 0:
+            # With check_every > 1 several steps may pass before a rollback: every trail column is kept.
+            state.save(self._backup, whole_trail=every > 1)
+            self._backup_of = weakref.ref(state)
+
+    def _roll_back(self, state, error=None):
+        """Return `state` to the rollback point (the last good checked step: its positions,
+        velocities, lifetimes, emission, trails, time and step count; the watch cleared) and give
+        `error` with that said in its message (None: just roll back). Solver-side carries (adaptive
+        step sizes, warm starts) are not undone: they only choose where the next solve starts."""
+        saved = None if self._backup_of is None else self._backup_of()
+        if saved is state:
+            state.restore(self._backup)
+        if error is None:
+            return None
+        where = (
+            f"the state is left at the last good step checked, step {state.step_count} "
+            f"(t = {state.time:.6g} s)"
+            if saved is state
+            else "the state could not be rolled back (it was never stepped by this stepper)"
+        )
+        return DivergenceError(
+            f"{error}; {where}",
+            step=error.step,
+            particle=error.particle,
+            quantity=error.quantity,
+            value=error.value,
+        )
 
     def _divergence(self, state):
         """The DivergenceError the state's watch recorded, or None (one counter read)."""

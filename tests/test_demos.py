@@ -158,7 +158,10 @@ def test_drape_demo_rests_on_the_ball_and_the_floor(tmp_path):
     scene = make_scene("drape", resolution=24)
     o = scene.options
     center, r, thickness = np.array(o["ball_center"]), o["ball_radius"], o["thickness"]
-    for _ in range(60):  # 1 s: fallen, draped, nearly at rest
+    # 1.5 s: fallen, draped, nearly at rest. Which of the ~15 vertices over the top touch at a given
+    # instant is chaotic: a 1e-9 m nudge of the start (or another compiler's rounding) moved the share
+    # within 2 mm between 0.53 and 0.64 at 1 s, and between 0.64 and 0.79 at 1.5 s (6 nudged starts).
+    for _ in range(90):
         scene.advance_frame()
     x, _, _ = scene.cloth_mesh()
     dist = np.linalg.norm(x - center, axis=1)
@@ -168,9 +171,9 @@ def test_drape_demo_rests_on_the_ball_and_the_floor(tmp_path):
     # Over the top of the ball the cloth rests on it: most vertices touch, none floats far off.
     top = (np.linalg.norm((x - center)[:, [0, 2]], axis=1) < 0.5 * r) & (x[:, 1] > center[1])
     gap = dist[top] - r - thickness
-    assert top.sum() >= 8 and np.mean(gap < 2e-3) >= 0.6 and gap.max() < 0.04
+    assert top.sum() >= 8 and np.mean(gap < 2e-3) >= 0.55 and gap.max() < 0.04
 
-    mesh = read_triangle_mesh(scene.export_frame(tmp_path, 60)[0])
+    mesh = read_triangle_mesh(scene.export_frame(tmp_path, 90)[0])
     assert mesh["vertices"].shape == (24 * 24, 3) and mesh["triangles"].shape == (2 * 23 * 23, 3)
     normals = mesh["vertex_normals"]
     assert np.allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-6)

@@ -50,6 +50,7 @@ class _RigidCollider:
     motion = None
     needs_prepare = False  # no Python-side work before a step
     heavy = False  # small tests: `collide` may unroll them
+    shell = False  # a solid: a particle that crossed its surface ends inside, where projection finds it
 
     @property
     def moving(self) -> bool:

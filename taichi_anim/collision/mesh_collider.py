@@ -7,7 +7,10 @@ mesh the distance is signed (negative inside) by the angle-weighted pseudo-norma
 (Bærentzen & Aanæs, "Signed distance computation using the angle weighted pseudonormal", IEEE TVCG
 11(3), 2005, Theorem 1: (p - c) . N >= 0 outside, with N the face normal, the sum of the two face normals
 at an edge, or the sum of the face normals weighted by their angles at a vertex). An open mesh is a shell:
-the unsigned distance minus the thickness, so particles stay `thickness` away on either side.
+the unsigned distance minus the thickness, so particles stay `thickness` away on either side; it stops
+particles at thickness 0 too, in both collision modes: the swept test below catches the crossing of a
+face (from the side the particle comes from), and the projection mode runs it for open meshes
+(response.py, `_cross_shells`).
 
 Continuous test (`sweep`): conservative advancement (Mirtich, "Impulse-based dynamic simulation of rigid
 body systems", PhD thesis 1996, ch. 3) of a point moving from x0 to x1 against the mesh grown by
@@ -100,6 +103,12 @@ class ColliderMesh:
     deforming mesh, linearly interpolated and held outside the range, or None."""
 
     heavy = True  # large tests: `collide` keeps one copy of them in a run-time loop
+
+    @property
+    def shell(self) -> bool:
+        """An open mesh has no inside: a particle can pass through it within a step without ever
+        ending inside it (at thickness 0 never), so the projection mode sweeps it too."""
+        return not self.closed
 
     def __init__(self, vertices, faces, *, thickness, restitution, friction, motion=None, vertex_frames=None):
         self.thickness = validate.non_negative("thickness", thickness)
@@ -471,12 +480,21 @@ class ColliderMesh:
                 nc = delta.normalized(1e-30)
                 v = self._surface_velocity(face, w)
                 rel = path - h * v  # the motion relative to the surface
+                if ti.static(not self.closed):
+                    if d <= tol:
+                        # On the surface itself (a point against a shell of thickness 0): delta is
+                        # round-off and may point through it. A two-sided shell is hit from the side the
+                        # point comes from: the face's normal against the motion.
+                        nc = self._face_normal(face, s)
+                        if nc.dot(rel) > 0.0:
+                            nc = -nc
                 approach = -rel.dot(nc)
                 if approach > GRAZING * rel.norm():
                     # Close the last gap (< tol) along the normal: a Newton step on the distance, which
-                    # is convex along the path for one feature, so it does not pass the contact.
+                    # is convex along the path for one feature, so it does not pass the contact (a point
+                    # already a hair through a shell stays where it is).
                     if d - rr <= tol:
-                        tt = ti.min(tt + ti.max(d - rr, 0.0) / approach, 1.0)
+                        tt = ti.min(tt + ti.max(delta.dot(nc) - rr, 0.0) / approach, 1.0)
                     tau = tt
                     n = nc
                     vs = v

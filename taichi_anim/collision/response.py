@@ -62,6 +62,11 @@ def any_moving(colliders) -> bool:
     return any(c.moving for c in colliders)
 
 
+def any_shell(colliders) -> bool:
+    """Whether any collider is a shell (an open mesh: a surface with no inside)."""
+    return any(c.shell for c in colliders)
+
+
 def any_heavy(colliders) -> bool:
     """Whether any collider has large tests (a mesh)."""
     return any(c.heavy for c in colliders)
@@ -280,5 +285,26 @@ def collide(colliders: ti.template(), mode: ti.template(), x0, v0, x1, v1, t, dt
             if tau <= 1.0:
                 xe, ve = _stop(xs, xe, tau, vsurf)
             x, v = xe, ve
+    if ti.static(mode == CollisionMode.PROJECTION and any_shell(colliders)):
+        x, v = _cross_shells(colliders, x0, x, v, t, dt, r, rest_speed)
     # Safety net in both modes: nothing ends a step inside a collider (round-off, multiple contacts).
     return _project(colliders, x, v, r, rest_speed, x0, t + dt, dt)
+
+
+@ti.func
+def _cross_shells(colliders: ti.template(), x0, x, v, t, dt, r, rest_speed):
+    """Projection mode against shells (open meshes): a particle can cross one within a step without
+    ending inside it (at thickness 0 it never is inside), where no end-point projection finds it. The
+    step's path x0 -> x is swept instead; at its first contact the particle stays on the side it came
+    from, the rest of the step's displacement (relative to the surface) loses its part into the surface
+    and slides with Coulomb friction, and the velocity responds as in a projection."""
+    for c in ti.static(colliders):
+        if ti.static(c.shell):
+            tau, n, vs = c.sweep(x0, x, t, dt, r)
+            if tau <= 1.0:
+                dx = (1.0 - tau) * (x - x0 - dt * vs)
+                dn = ti.min(dx.dot(n), 0.0)
+                x = x0 + tau * (x - x0) + (1.0 - tau) * dt * vs + dx - dn * n
+                x, v = _slide_and_respond(c, x, v - vs, dn, n, dx, rest_speed)
+                v += vs
+    return x, v

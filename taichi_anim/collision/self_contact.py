@@ -25,21 +25,38 @@ positions x0 (intersection-free) and its end positions x1:
    every vertex is held. This is the continuous guarantee, without a root-finding CCD pass, for any step
    a method proposes, provided x0 has no crossing and kinematic vertices are static (a pinned vertex
    that the user animates is not guarded). A held vertex keeps the velocity of the motion it was allowed.
+   Momentum: the vertices of every unsafe pair join one group (union-find), and after the holding each
+   group is shifted by its momentum deficit over its mass, so it keeps its momentum (a perfectly
+   inelastic contact, the group's mass-weighted common motion, as in Provot's and Bridson et al.'s
+   impact zones, translation only). A common shift leaves every pair inside the group as safe as it was;
+   pairs to the outside are re-checked, and a vertex the shift carries past its reach has its pairs
+   looked for again from there (a second round). Only the last resort (every vertex held, after
+   HOLD_PASSES) and a group with a pinned vertex do not keep momentum.
 
 Candidate pairs come from box structures over the triangles and the edges at x0 (a BVH, spatial/), refit
 every step, each primitive's box grown by its reach r = m + KEEP thickness / 2 for a vertex that the
 method moved by m: a pair farther apart than both sides' reaches cannot meet while every vertex moves
 less than its reach (a vertex moved past its reach by the sweeps is held), and every pair that can come
 within KEEP thicknesses is found.
+
+The guarantee needs a start without crossings: the guard keeps every pair on the side it starts on, so
+two sheets that start interpenetrating stay hooked. The first time a State is stepped its triangles are
+checked exactly (spatial/crossings.py) and, by default, a start with crossing or touching pairs of
+non-adjacent triangles is refused with the count and the first pair (start_crossings="warn" runs it
+anyway, with a warning naming the count).
 """
+
+import warnings
+import weakref
 
 import numpy as np
 import taichi as ti
 
 from .. import validate
-from ..errors import DivergenceError
+from ..errors import DivergenceError, ParameterError
 from ..runtime import data_oriented
 from ..spatial.bounds import aabb_point_distance_sq
+from ..spatial.crossings import intersecting_triangle_pairs, triangles_meet
 from ..spatial.distance import point_triangle_closest, segment_segment_closest
 from ..spatial.select import BoxQueryMethod, make_box_query
 from .response import project_spheres
@@ -86,7 +103,10 @@ class SelfContact:
     factor applied to each pair's correction (over-relaxation above 1); bound_fraction gamma in
     (0, 0.5); pairs_per_vertex: capacity of the pair lists (an overflow raises rather than drop one);
     guard=False leaves out the displacement bounds (proximity only: cheaper, but a fast step can end
-    with a crossing; for comparisons); broad_phase: "auto", "brute", "grid", "octree" or "bvh"."""
+    with a crossing; for comparisons); broad_phase: "auto", "brute", "grid", "octree" or "bvh";
+    start_crossings: what a State whose first step starts with crossing triangles gets, "raise" (a
+    ParameterError naming the count and the first pair) or "warn" (a RuntimeWarning; the pairs stay
+    crossed)."""
 
     def __init__(
         self,
@@ -100,8 +120,12 @@ class SelfContact:
         pairs_per_vertex: int,
         guard: bool = True,
         broad_phase: str = "auto",
+        start_crossings: str = "raise",
     ):
         self.thickness = thickness
+        self.start_crossings = start_crossings
+        self._checked = weakref.WeakSet()  # States whose start was checked for crossings
+        self._triangles = np.asarray(model.triangles, dtype=np.int64)
         self.friction = friction
         self.iterations = iterations
         self.relaxation = relaxation
@@ -143,10 +167,23 @@ class SelfContact:
         self.ee_near = ti.field(ti.i8, ne * k)
         self.ee_n = ti.field(ti.i32, ne)
         self.hold = ti.field(ti.i32, nv)
+        # The guard's groups: pairs flagged unsafe join their vertices (union-find); each group keeps its
+        # momentum (`_place`). Per vertex: anchored (held absolutely), the guard's input position, its
+        # group's root, and per root the free mass [kg], momentum deficit [kg m] and a fixed flag.
+        self.vt_unsafe = ti.field(ti.i8, nv * k)
+        self.ee_unsafe = ti.field(ti.i8, ne * k)
+        self.anchor = ti.field(ti.i32, nv)
+        self.parent = ti.field(ti.i32, nv)
+        self.x_in = ti.Vector.field(3, float, nv)
+        self.g_root = ti.field(ti.i32, nv)
+        self.g_mass = ti.field(float, nv)
+        self.g_deficit = ti.Vector.field(3, float, nv)
+        self.g_fixed = ti.field(ti.i32, nv)
         # [0, 1] vertex-triangle and edge-edge proximity pairs of the last step; [2] vertex-steps held by
         # their bound (a running total); [3] a sticky overflow flag; [4, 5] guard pairs of the last step;
-        # [6] steps that held every vertex (a running total); [7] violations in the current pass.
-        self.count = ti.field(ti.i32, 8)
+        # [6] steps that held every vertex (a running total); [7] violations in the current pass; [8]
+        # vertices past their reach after the first round (a second round looks again from there).
+        self.count = ti.field(ti.i32, 9)
         self.reach = ti.field(float, nv)  # per vertex [m]: how far its queries look
         self.tri_reach = ti.field(float, nf)
         self.edge_reach = ti.field(float, ne)
@@ -158,6 +195,7 @@ class SelfContact:
         vec3 = ti.types.vector(3, float)
         self._acc = ti.types.struct(x=vec3, lo=vec3, hi=vec3, r=float, d=float, n=ti.i32)
         self.stats = {"vertex_triangle_pairs": 0, "edge_edge_pairs": 0, "clamped": 0}
+        self.start_crossing_pairs = 0  # crossing triangle pairs found at the last start checked
 
     def settings(self) -> dict:
         return {
@@ -169,16 +207,74 @@ class SelfContact:
             "guard": self.guard,
             "pairs_per_vertex": self.slots,
             "broad_phase": self.tri_boxes.describe(),
+            "start_crossings": self.start_crossings,
         }
 
     # -- the step ---------------------------------------------------------------------------------------
 
     def begin(self, model, state) -> None:
-        """Record the step's start positions (call before the method advances the state)."""
+        """Record the step's start positions (call before the method advances the state); a State's
+        first step checks its start for crossings (`check_start`)."""
+        if state not in self._checked:
+            self.check_start(state)
+            self._checked.add(state)
         self._begin(state)
+
+    def check_start(self, state) -> int:
+        """Count the pairs of non-adjacent cloth triangles of `state` that cross or touch (exactly, as
+        spatial.crossings does) and, if there are any, raise ParameterError naming the count and the
+        first pair (start_crossings "raise") or warn (start_crossings "warn"). Returns the count."""
+        tri = self._triangles
+        x = state.positions()
+        pairs = intersecting_triangle_pairs(x, tri)
+        self.start_crossing_pairs = len(pairs)
+        if not len(pairs):
+            return 0
+        i, j = (int(k) for k in pairs[0])
+        what = (
+            f"triangles {i} (vertices {tuple(map(int, tri[i]))}) and {j} (vertices {tuple(map(int, tri[j]))})"
+        )
+        for f, g in ((i, j), (j, i)):  # name an edge of one that meets the other
+            for a, b in ((0, 1), (1, 2), (2, 0)):
+                p, q = x[tri[f, a]], x[tri[f, b]]
+                if triangles_meet(np.array([[p, q, q]]), x[tri[g]][None])[0]:
+                    edge = f"edge ({int(tri[f, a])}, {int(tri[f, b])}) of triangle {f}"
+                    what = f"{edge} meets triangle {g} (vertices {tuple(map(int, tri[g]))})"
+                    break
+            else:
+                continue
+            break
+        message = (
+            f"self-contact: the start state has {len(pairs)} pair(s) of non-adjacent cloth triangles that "
+            f"cross or touch, the first: {what}; the guard keeps every pair on the side it starts on, so "
+            f"crossed cloth stays hooked"
+        )
+        if self.start_crossings == "raise":
+            raise ParameterError(
+                f"{message}. Place the cloths apart (at least the thickness {self.thickness:g} m) or pass "
+                f"start_crossings='warn' to add_cloth_self_contact to run anyway"
+            )
+        warnings.warn(f"{message} (start_crossings='warn': running anyway)", RuntimeWarning, stacklevel=4)
+        return len(pairs)
 
     def solve(self, model, state, h: float) -> None:
         """Proximity constraints and displacement bounds on the state a method just advanced by h [s]."""
+        self._find_pairs(model, state)
+        if self.count[0] + self.count[1] > 0:  # one read: most steps of a falling cloth have no pairs
+            self._proximity(model, state, state.time + h)
+        if not self.guard:
+            self._finish(model, state, h, True)
+            return
+        self._finish(model, state, h, False)
+        if self.count[8] > 0:
+            # A group's common motion (or a proximity sweep) carried a vertex past its reach, beyond the
+            # pairs looked at: look again from these positions (reaches grown to their displacements),
+            # and guard them once more (then a vertex past its reach is held where its bound says).
+            self._find_pairs(model, state)
+            self._finish(model, state, h, True)
+
+    def _find_pairs(self, model, state) -> None:
+        """Candidate pairs, their distances at x0 and the bounds, for the positions the state holds."""
         self._boxes(model, state)
         if self._built:
             self.tri_boxes.update()
@@ -190,9 +286,6 @@ class SelfContact:
         self._query()
         self._query_edges()
         self._bounds()
-        if self.count[0] + self.count[1] > 0:  # one read: most steps of a falling cloth have no pairs
-            self._proximity(model, state, state.time + h)
-        self._finish(model, state, h)
 
     def read_stats(self) -> dict:
         """Pairs found in the last step, and vertex-steps held by their bound so far (reads
@@ -468,6 +561,8 @@ class SelfContact:
                     # A contact must not push a vertex into a collider (the lower of two sheets on a ball).
                     for v in range(self.vertex_count):
                         i = self.vertex[v]
+                        if model.inv_mass(i) == 0.0:
+                            continue  # pinned: kinematic, colliders do not move it
                         x, _v = project_spheres(
                             model.colliders,
                             state.particle_x[i],
@@ -486,20 +581,26 @@ class SelfContact:
         return (di - dj).norm()
 
     @ti.func
-    def _violations(self, model: ti.template(), state: ti.template(), mark: ti.template()):
+    def _violations(
+        self, model: ti.template(), state: ti.template(), mark: ti.template(), final: ti.template()
+    ):
         """Count the guard pairs that could have met in the step: a pair at distance d at x0 cannot meet
         while every material point of one side moves less than d relative to every point of the other,
         and those relative motions are convex combinations of the vertices' (max over vertex pairs).
-        With mark, their vertices are held."""
+        With mark, their vertices are held and the pairs flagged (to join their groups). A vertex moved
+        past its reach counts only in the final round (before it, `solve` looks again from there); marked
+        there, it is held where its bound says (anchored: its group keeps no common motion)."""
         self.count[7] = 0
-        for v in range(self.vertex_count):
-            # The proximity sweeps (and collider projections) may have moved a vertex past its reach, the
-            # premise of "a pair not found cannot meet".
-            if (state.particle_x[self.vertex[v]] - self.x0[v]).norm() >= self.reach[v]:
-                if self._w(model, v) > 0.0:
-                    self.count[7] += 1
-                    if ti.static(mark):
-                        self.hold[v] = 1
+        if ti.static(final):
+            for v in range(self.vertex_count):
+                # The proximity sweeps, collider projections or a group's common motion may have moved a
+                # vertex past its reach, the premise of "a pair not found cannot meet".
+                if (state.particle_x[self.vertex[v]] - self.x0[v]).norm() >= self.reach[v]:
+                    if self._w(model, v) > 0.0:
+                        self.count[7] += 1
+                        if ti.static(mark):
+                            self.hold[v] = 1
+                            self.anchor[v] = 1
         for v in range(self.vertex_count):
             for j in range(self.vt_n[v]):
                 k = v * self.slots + j
@@ -513,6 +614,7 @@ class SelfContact:
                 if rel >= SAFE * self.vt_d[k] and free > 0.0:
                     self.count[7] += 1
                     if ti.static(mark):
+                        self.vt_unsafe[k] = ti.i8(1)
                         self.hold[v] = 1
                         for i in ti.static(range(3)):
                             self.hold[t[i]] = 1
@@ -529,22 +631,104 @@ class SelfContact:
                 if rel >= SAFE * self.ee_d[k] and free > 0.0:
                     self.count[7] += 1
                     if ti.static(mark):
+                        self.ee_unsafe[k] = ti.i8(1)
                         self.hold[a] = 1
                         self.hold[b] = 1
                         self.hold[c] = 1
                         self.hold[d] = 1
 
     @ti.func
-    def _clamp(self, model: ti.template(), state: ti.template(), last: ti.template()):
-        """Move held vertices back within their bound of the step's start (the last time: every vertex,
-        if unsafe pairs are left or a pair list overflowed); kinematic vertices (pinned, attached) go
-        where they are driven: a pinned vertex does not move, one that a user animates is not guarded."""
+    def _find(self, v):
+        """The root of local vertex v's group (path halving; serial callers only)."""
+        while self.parent[v] != v:
+            self.parent[v] = self.parent[self.parent[v]]
+            v = self.parent[v]
+        return v
+
+    @ti.func
+    def _union(self, a, b):
+        ra, rb = self._find(a), self._find(b)
+        if ra < rb:
+            self.parent[rb] = ra
+        elif rb < ra:
+            self.parent[ra] = rb
+
+    @ti.func
+    def _join_groups(self):
+        """Join the four vertices of every flagged pair into one group (union-find, serial: a fixed order
+        and no contention)."""
+        ti.loop_config(serialize=True)
+        for v in range(self.vertex_count):
+            for j in range(self.vt_n[v]):
+                k = v * self.slots + j
+                if self.vt_unsafe[k]:
+                    t = self.tri[self.vt_tri[k]]
+                    for i in ti.static(range(3)):
+                        self._union(v, t[i])
+        ti.loop_config(serialize=True)
+        for e in range(self.edge_count):
+            for j in range(self.ee_n[e]):
+                k = e * self.slots + j
+                if self.ee_unsafe[k]:
+                    g = self.ee_other[k]
+                    a = self.edge[e][0]
+                    self._union(a, self.edge[e][1])
+                    self._union(a, self.edge[g][0])
+                    self._union(a, self.edge[g][1])
+
+    @ti.func
+    def _held_step(self, v):
+        """Local vertex v's guard input displacement from x0, shortened to its bound."""
+        step = self.x_in[v] - self.x0[v]
+        length = step.norm()
+        b = self.bound[v]
+        if length > b:
+            step *= b / length
+        return step
+
+    @ti.func
+    def _place(self, model: ti.template(), state: ti.template()):
+        """Held vertices, from the guard's input positions: each moved back to within its bound of x0,
+        then every vertex of its group shifted by the group's momentum deficit over its mass, so the
+        group keeps its momentum (a perfectly inelastic contact: the group's mass-weighted common
+        motion). The shift is common to the group, so every pair inside it stays safe; a group with a
+        pinned or anchored vertex (external: it takes the momentum) is not shifted."""
+        for v in range(self.vertex_count):
+            self.g_mass[v] = 0.0
+            self.g_deficit[v] = ti.Vector.zero(float, 3)
+            self.g_fixed[v] = 0
+        # Sums in a fixed serial order: the same run gives the same bits (no float atomics).
+        ti.loop_config(serialize=True)
+        for v in range(self.vertex_count):
+            if self.hold[v]:
+                r = self._find(v)
+                self.g_root[v] = r
+                w = self._w(model, v)
+                if w > 0.0 and self.anchor[v] == 0:
+                    self.g_mass[r] += 1.0 / w
+                    self.g_deficit[r] += (self._held_step(v) - (self.x_in[v] - self.x0[v])) / w
+                else:
+                    self.g_fixed[r] = 1
         for v in range(self.vertex_count):
             i = self.vertex[v]
-            held = self.hold[v] == 1
-            if ti.static(last):
-                held = self.count[7] > 0 or self.count[3] > 0
-            if held and model.inv_mass(i) > 0.0:
+            if self.hold[v] and model.inv_mass(i) > 0.0:
+                x = self.x0[v] + self._held_step(v)
+                r = self.g_root[v]
+                if self.g_fixed[r] == 0 and self.g_mass[r] > 0.0:
+                    x -= self.g_deficit[r] / self.g_mass[r]
+                if (x - self.x_in[v]).norm_sqr() > 0.0:
+                    ti.atomic_add(self.count[2], 1)
+                state.particle_x[i] = x
+
+    @ti.func
+    def _clamp_all(self, model: ti.template(), state: ti.template()):
+        """The last resort, if unsafe pairs are left or a pair list overflowed: every vertex moved back
+        within its bound of the step's start (every pair then moves by less than 2 gamma d < d; this one
+        does not keep momentum). Kinematic vertices (pinned, attached) go where they are driven: a pinned
+        vertex does not move, one that a user animates is not guarded."""
+        for v in range(self.vertex_count):
+            i = self.vertex[v]
+            if (self.count[7] > 0 or self.count[3] > 0) and model.inv_mass(i) > 0.0:
                 step = state.particle_x[i] - self.x0[v]
                 length = step.norm()
                 b = self.bound[v]
@@ -553,25 +737,42 @@ class SelfContact:
                     ti.atomic_add(self.count[2], 1)
 
     @ti.kernel
-    def _finish(self, model: ti.template(), state: ti.template(), h: float):
+    def _finish(self, model: ti.template(), state: ti.template(), h: float, final: ti.template()):
         for v in range(self.vertex_count):
             self.hold[v] = 0
-        # Hold the vertices of pairs that could have met, re-check (holding one vertex can make a new
-        # pair fast), and after HOLD_PASSES hold every vertex: all held, every pair is safe (gamma < 1/2).
+            self.anchor[v] = 0
+            self.parent[v] = v
+            self.x_in[v] = state.particle_x[self.vertex[v]]
+            for j in range(self.vt_n[v]):
+                self.vt_unsafe[v * self.slots + j] = ti.i8(0)
+        for e in range(self.edge_count):
+            for j in range(self.ee_n[e]):
+                self.ee_unsafe[e * self.slots + j] = ti.i8(0)
+        # Hold the vertices of pairs that could have met, with their groups' common motion, re-check
+        # (a group's motion can make a pair to its outside fast), and after HOLD_PASSES hold every
+        # vertex within its bound: all held, every pair is safe (gamma < 1/2).
         if ti.static(self.guard):
             for _pass in ti.static(range(HOLD_PASSES)):
-                self._violations(model, state, True)
-                self._clamp(model, state, False)
-            self._violations(model, state, False)
+                self._violations(model, state, True, final)
+                self._join_groups()
+                self._place(model, state)
+            self._violations(model, state, False, final)
             if self.count[7] > 0:
                 self.count[6] += 1
-            self._clamp(model, state, True)
+            self._clamp_all(model, state)
+            if ti.static(not final):
+                # Vertices past their reach: `solve` finds the pairs again from these positions.
+                self.count[8] = 0
+                for v in range(self.vertex_count):
+                    if (state.particle_x[self.vertex[v]] - self.x0[v]).norm() >= self.reach[v]:
+                        if self._w(model, v) > 0.0:
+                            self.count[8] += 1
         for v in range(self.vertex_count):
             i = self.vertex[v]
             x = state.particle_x[i]
             if (x - self.x_pred[v]).norm_sqr() > 0.0:
                 # The corrections act as an inelastic impulse: the velocity keeps the method's update plus
-                # the displacement the contacts added.
+                # the displacement the contacts added (x_pred: the positions this round started from).
                 state.particle_v[i] += (x - self.x_pred[v]) / h
 
 
@@ -585,6 +786,7 @@ def self_contact_options(
     pairs_per_vertex: int = 128,
     guard: bool = True,
     broad_phase: str = "auto",
+    start_crossings: str = "raise",
 ) -> dict:
     """Validated options of `SelfContact` (the Builder's add_cloth_self_contact)."""
     return dict(
@@ -596,4 +798,5 @@ def self_contact_options(
         pairs_per_vertex=validate.count("pairs_per_vertex", pairs_per_vertex, 1),
         guard=bool(guard),
         broad_phase=validate.choice("broad_phase", broad_phase, [m.value for m in BoxQueryMethod] + ["auto"]),
+        start_crossings=validate.choice("start_crossings", start_crossings, ["raise", "warn"]),
     )

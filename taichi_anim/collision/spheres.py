@@ -162,7 +162,7 @@ class ContactSpheres:
         self._warned = False
         n = model.particle_count
         # Small sphere counts are launch-bound on the CPU: a step is ~8 loops, each ~70 us more in
-        # parallel than serial here (benchmarks/realtime.py found 463 us per step at 62 spheres).
+        # parallel than serial here (benchmarks/results/realtime.md found 463 us per step at 62 spheres).
         self._serial = serial_loops(n)
         self.max_radius = model.max_radius
         self.min_radius = model.min_sphere_radius  # points (radius 0) may share the scene
@@ -365,7 +365,8 @@ class ContactSpheres:
                 sweep.src.count[k] = acc.n
             x = acc.x + acc.dx
             if ti.static(model.collider_count > 0):
-                x, _ = project_spheres(model.colliders, x, ti.Vector.zero(float, 3), acc.r, 0.0, t_end)
+                if acc.w > 0.0:  # pinned spheres are kinematic: colliders never move them
+                    x, _ = project_spheres(model.colliders, x, ti.Vector.zero(float, 3), acc.r, 0.0, t_end)
             dst.x[k] = x
 
     @ti.kernel

@@ -54,7 +54,7 @@ def test_spring_explosion_stops_early_naming_step_particle_quantity_value():
     e = err.value
     watchdog = integ.stepper_for(model).watchdog
     lo, hi, speed = watchdog.limits_at(state.time)
-    assert e.step == state.step_count <= 5
+    assert e.step <= 5 and state.step_count == e.step - 1  # left at the last good step
     assert e.particle == 1 and e.quantity == "speed" and e.value > speed
     assert f"step {e.step}" in str(e) and "particle 1" in str(e) and "speed" in str(e)
     x = state.particle_x.to_numpy()
@@ -74,13 +74,49 @@ def test_stiff_cloth_explosion_stops_early(method):
         for _ in range(2000):
             integ.step(model, state, 1 / 60)
     e = err.value
-    assert e.step == state.step_count <= 10
+    assert e.step <= 10 and state.step_count == e.step - 1
     assert 0 <= e.particle < model.particle_count and e.quantity in ("speed", "position")
     assert math.isfinite(e.value)
     lo, hi, _ = integ.stepper_for(model).watchdog.limits_at(state.time)
     x = state.particle_x.to_numpy()
     assert np.all(np.isfinite(x)) and np.all((lo < x) & (x < hi))
     print(f"{method}: stopped at step {e.step}, particle {e.particle}, {e.quantity} = {e.value:.3g}")
+
+
+def _bead_run(integ, model, state, steps: int = 3000):
+    """Step the spring example until it raises; the state after every step that returned, and the
+    error."""
+    good = [(state.particle_x.to_numpy(), state.particle_v.to_numpy(), state.step_count, state.time)]
+    with pytest.raises(ta.DivergenceError) as err:
+        for _ in range(steps):
+            integ.step(model, state, 1 / 60)
+            good.append(
+                (state.particle_x.to_numpy(), state.particle_v.to_numpy(), state.step_count, state.time)
+            )
+    return good, err.value
+
+
+@pytest.mark.parametrize("check_every", [1, 3])
+def test_a_divergence_error_leaves_the_state_at_the_last_good_step(check_every):
+    """Pass: the spring example (a bead on a stiff spring that explodes) under the default policy
+    "raise": after the DivergenceError the state's positions, velocities, step count and time equal,
+    bitwise, those after the last good step that was checked (the step before the bad one with
+    check_every 1; the last multiple of 3 before it with check_every 3), the message says so, the watch
+    is cleared (stepping on with a stable dt works and counts from there). Without the rollback the
+    state held the bad step (the bead at 468 m/s, step 2)."""
+    ta.init("cpu", precision="f32")
+    model, state = spring_pair()
+    integ = ta.make_integrator("symplectic_euler", check_every=check_every)
+    good, e = _bead_run(integ, model, state)
+    last = (e.step - 1) // check_every * check_every  # the last checked step before the bad one
+    x, v, count, t = good[last]
+    assert e.step >= 2 and state.step_count == count == last and state.time == t
+    assert np.array_equal(state.particle_x.to_numpy(), x) and np.array_equal(state.particle_v.to_numpy(), v)
+    assert f"left at the last good step checked, step {last}" in str(e)
+    assert np.abs(state.particle_v.to_numpy()).max() < 10.0  # not the exploding step
+    assert int(state.nonfinite_count[None]) == 0
+    integ.step(model, state, 1e-5)  # h w = 0.03: stable
+    assert state.step_count == last + 1
 
 
 def test_energy_growth_is_caught_before_the_speed_bound():
