@@ -10,8 +10,7 @@ saved (atomic, reopened to check it). Reported: ms per frame for content, PLY, U
 each. A first PLY write and a first one-frame stage are made and discarded before timing (imports, first
 use). Files go to a temporary folder on the local disk.
 
-    .venv/bin/python benchmarks/export_cost.py           # benchmarks/results/export_cost.{md,json}
-    .venv/bin/python benchmarks/export_cost.py --quick   # smoke: fewer frames, benchmarks/out/
+    .venv/bin/python benchmarks/export_cost.py [--quick]
 """
 
 from __future__ import annotations
@@ -21,18 +20,8 @@ import time
 from pathlib import Path
 
 import taichi as ti
-from common import (
-    command_line,
-    log,
-    machine_section,
-    md_table,
-    output_paths,
-    parse_args,
-    publish,
-    run_started,
-)
+from harness import Page, init, log, parse_args
 
-import taichi_anim as ta
 from taichi_anim.io import UsdStageWriter
 from taichi_anim.scenes import make_scene
 from taichi_anim.scenes.base import write_items_ply
@@ -107,69 +96,46 @@ def measure(name: str, options: dict, frames: int, scratch: Path) -> dict:
     return row
 
 
-def report(rows, args, started: dict, elapsed: float, frames: int) -> str:
-    table = []
-    for r in rows:
-        m = r["ms_per_frame"]
-        table.append(
-            [
-                r["demo"],
-                ", ".join(f"{k} {v}" for k, v in r["last_frame_items"].items()),
-                f"{m['content']:.2f}",
-                f"{m['ply']:.2f}",
-                f"{m['usd_collect']:.2f}",
-                f"{m['usd_save']:.2f}",
-                f"{m['usd']:.2f}",
-                f"{r['usd_over_ply']:.2f}",
-                f"{r['ply_bytes_per_frame'] / 1e3:.0f}",
-                f"{r['usd_bytes_per_frame'] / 1e3:.0f}",
-            ]
-        )
-    settings = ", ".join(f"{d} {o}" if o else d for d, o in DEMOS)
-    return "\n".join(
-        [
-            "## Export cost: PLY frames against one USD stage",
-            "",
-            f"Regenerate: `{command_line(args, 'export_cost.py')}` (took {elapsed / 60:.1f} min).",
-            "",
-            f"Demos ({settings}), f32, {WARMUP} warm-up frames, then {frames} frames; per frame the content "
-            "items are made once (column `content`) and written as PLY files (atomic, verified) and added "
-            "to one USD stage, saved once at the end as a binary crate (atomic, reopened to check); "
-            "`save` is that save divided by the frames. ms per frame; sizes in kB per frame; items: "
-            "vertex or point counts of the last frame's items by role.",
-            "",
-            md_table(
-                [
-                    "demo",
-                    "items",
-                    "content",
-                    "PLY",
-                    "USD collect",
-                    "USD save",
-                    "USD",
-                    "USD / PLY",
-                    "PLY kB",
-                    "USD kB",
-                ],
-                table,
-            ),  # fmt: skip
-            "",
-            machine_section(started),
-        ]
-    )
-
-
 def main(argv=None) -> int:
-    args = parse_args(__doc__.splitlines()[0], argv)
-    md_path, out_dir = output_paths(args)
-    started = run_started()
-    ta.init("cpu", log_level=ti.ERROR)
+    args = parse_args(__doc__, argv)
+    init("f32")
     frames = QUICK_FRAMES if args.quick else FRAMES
-    t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as scratch:
-        rows = [measure(name, options, frames, Path(scratch)) for name, options in DEMOS]
-    elapsed = time.perf_counter() - t0
-    publish(md_path, out_dir, "export_cost", report(rows, args, started, elapsed, frames), rows, elapsed)
+        data = [measure(name, options, frames, Path(scratch)) for name, options in DEMOS]
+    rows = []
+    for r in data:
+        m = r["ms_per_frame"]
+        items = ", ".join(f"{k} {v}" for k, v in r["last_frame_items"].items())
+        cols = ("content", "ply", "usd_collect", "usd_save", "usd")
+        rows.append([r["demo"], items, *(f"{m[k]:.2f}" for k in cols), f"{r['usd_over_ply']:.2f}"])
+        rows[-1] += [f"{r['ply_bytes_per_frame'] / 1e3:.0f}", f"{r['usd_bytes_per_frame'] / 1e3:.0f}"]
+    page = Page(
+        "export_cost",
+        "Export cost: PLY frames against one USD stage",
+        args,
+        {
+            "demos": ", ".join(f"{d} {o}" if o else d for d, o in DEMOS),
+            "frames": f"{WARMUP} warm-up, then {frames}; per frame the content items made once, written as "
+            "PLY (atomic, verified) and added to one USD stage saved once at the end (its save / frames)",
+        },
+    )
+    page.table(
+        "ms and kB per frame",
+        [
+            "demo",
+            "items (last frame)",
+            "content",
+            "PLY",
+            "USD collect",
+            "USD save",
+            "USD",
+            "USD / PLY",
+            "PLY kB",
+            "USD kB",
+        ],
+        rows,
+    )
+    page.write(data)
     return 0
 
 

@@ -7,11 +7,9 @@ Scenes (f32, CPU, 2 threads): 100 free particles with gravity (one kernel per st
 with PCG (assemble + solver launches). Each figure: median microseconds per step over STEPS steps after a
 warm-up of WARMUP steps, in a fresh process per path, ROUNDS rounds alternating the paths.
 
-    .venv/bin/python benchmarks/launch_overhead.py          # writes benchmarks/results/launch_overhead.md
-    .venv/bin/python benchmarks/launch_overhead.py --quick  # smoke run: benchmarks/out/
+    .venv/bin/python benchmarks/launch_overhead.py [--quick]
 """
 
-import argparse
 import json
 import os
 import statistics
@@ -22,7 +20,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from common import load_average, md_table  # noqa: E402
+from harness import Page, parse_args  # noqa: E402
 
 CHILD = r"""
 import json, sys, time
@@ -76,12 +74,9 @@ def child(scene: str, method: str, plain: bool, warmup: int, steps: int) -> dict
     return result
 
 
-def main() -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--quick", action="store_true")
-    args = p.parse_args()
+def main(argv=None) -> int:
+    args = parse_args(__doc__, argv)
     rounds, warmup, steps = (1, 20, 200) if args.quick else (3, 100, 2000)
-    load_start = load_average()
     res: dict = {}
     for r in range(rounds):
         for scene, method in CASES:
@@ -98,29 +93,22 @@ def main() -> int:
         rows.append(
             [scene, method, f"{fast:.1f}", f"{plain:.1f}", f"{plain - fast:+.1f}", f"{plain / fast:.2f}"]
         )
-    table = md_table(
-        [
-            "scene",
-            "method",
-            "fast path µs/step",
-            "plain ti.data_oriented µs/step",
-            "difference",
-            "plain / fast",
-        ],
+    page = Page(
+        "launch_overhead",
+        "Launch overhead: descriptor-bound kernels against `ti.data_oriented`",
+        args,
+        {
+            "steps": f"median µs per step over {steps} steps after {warmup}, dt = 1e-4 s, f32, CPU",
+            "rounds": f"{rounds}, alternating the paths, a fresh process each",
+            "implicit": "PCG tol 1e-3, at most 8 iterations",
+        },
+    )
+    page.table(
+        "µs per step",
+        ["scene", "method", "fast path", "plain ti.data_oriented", "difference", "plain / fast"],
         rows,
     )
-    out_dir = ROOT / "benchmarks" / ("out" if args.quick else "results")
-    out_dir.mkdir(parents=True, exist_ok=True)
-    text = (
-        "# Launch overhead: descriptor-bound kernels against `ti.data_oriented`\n\n"
-        f"Command: `.venv/bin/python benchmarks/launch_overhead.py{' --quick' if args.quick else ''}`. "
-        f"Median µs per step over {steps} steps after {warmup}, {rounds} rounds alternating the paths, "
-        "a fresh process each; f32, CPU, 2 threads, dt = 1e-4 s; implicit: PCG tol 1e-3, at most 8 "
-        "iterations. "
-        f"Load average at start {load_start}, at end {load_average()}.\n\n{table}\n"
-    )
-    (out_dir / "launch_overhead.md").write_text(text)
-    print(text)
+    page.write({f"{k[0]} {k[1]} {'plain' if k[2] else 'fast'}": v for k, v in res.items()})
     return 0
 
 

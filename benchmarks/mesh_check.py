@@ -15,29 +15,11 @@ calls it, run only up to O3D_PAIRS_MAX triangles. Verdicts: the pairs Open3D's
 `get_self_intersecting_triangles` lists are re-decided by `triangle_pairs_intersect` (exact); a pair it
 lists that does not meet is a false alarm.
 
-    .venv/bin/python benchmarks/mesh_check.py           # benchmarks/results/mesh_check.{md,json}
-    .venv/bin/python benchmarks/mesh_check.py --quick   # smoke: the two small meshes, benchmarks/out/
+    .venv/bin/python benchmarks/mesh_check.py [--quick]   # --quick: the two small meshes
 """
 
-from __future__ import annotations
-
-import statistics
-import time
-
 import numpy as np
-import taichi as ti
-from common import (
-    clock,
-    command_line,
-    fmt_s,
-    log,
-    machine_section,
-    md_table,
-    output_paths,
-    parse_args,
-    publish,
-    run_started,
-)
+from harness import Page, fmt_s, init, log, median_time, parse_args
 
 import taichi_anim as ta
 from taichi_anim.spatial import mesh_report, triangle_pairs_intersect
@@ -59,14 +41,8 @@ def blob_mesh(particles: int, resolution: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def timed(fn, repeats: int) -> tuple[float, object]:
-    """(median seconds, result) of `repeats` calls after one warm-up call."""
-    out = fn()
-    times = []
-    for _ in range(repeats):
-        t0 = clock()
-        out = fn()
-        times.append(clock() - t0)
-    return statistics.median(times), out
+    """(median seconds of `repeats` calls after a warm-up, result)."""
+    return median_time(fn, repeats=repeats), fn()
 
 
 def measure(particles: int, resolution: int, repeats: int) -> dict:
@@ -111,73 +87,42 @@ def measure(particles: int, resolution: int, repeats: int) -> dict:
     return row
 
 
-def report(rows: list[dict], args, started: dict, elapsed: float, repeats: int) -> str:
-    import open3d as o3d
-
-    skipped = f"skipped (> {O3D_PAIRS_MAX:,} triangles)"
-    table = []
-    for r in rows:
+def main(argv=None) -> int:
+    args = parse_args(__doc__, argv)
+    init("f32")
+    meshes, repeats = (MESHES[:2], 3) if args.quick else (MESHES, REPEATS)
+    data = [measure(n, res, repeats) for n, res in meshes]
+    rows = []
+    for r in data:
         ours, o = r["ours"], r["open3d"]
-        table.append(
-            [
-                f"{r['triangles']:,}",
-                "`mesh_report` (all checks)",
-                fmt_s(ours["seconds"]),
-                "1",
-                f"ok = {ours['ok']} (intersecting pairs: {ours['intersecting_pairs']})",
-            ]
-        )
+        pairs = f"ok = {ours['ok']} (intersecting pairs: {ours['intersecting_pairs']})"
+        rows.append([f"{r['triangles']:,}", "`mesh_report` (all checks)", fmt_s(ours["seconds"]), "1", pairs])
         for name in ("is_edge_manifold", "is_vertex_manifold", "is_self_intersecting", "is_watertight"):
-            if name not in o:
-                table.append([f"{r['triangles']:,}", f"Open3D `{name}`", skipped, "-", "-"])
+            c = o.get(name)
+            if c is None:
+                rows.append(
+                    [f"{r['triangles']:,}", f"Open3D `{name}`", f"skipped (> {O3D_PAIRS_MAX:,})", "–", "–"]
+                )
                 continue
-            c = o[name]
             verdict = str(c["verdict"])
             if name == "is_self_intersecting":
                 verdict += f" (pairs flagged: {o['flagged_pairs']}, false alarms: {o['false_alarms']})"
-            table.append(
-                [
-                    f"{r['triangles']:,}",
-                    f"Open3D `{name}`",
-                    fmt_s(c["seconds"]),
-                    f"{c['seconds'] / ours['seconds']:.3g}",
-                    verdict,
-                ]
-            )
-    meshes = ", ".join(f"({r['particles']}, {r['resolution']}^3) -> {r['triangles']:,}" for r in rows)
-    return "\n".join(
-        [
-            "## Mesh checks: `mesh_report` against Open3D's",
-            "",
-            f"Regenerate: `{command_line(args, 'mesh_check.py')}` (took {elapsed / 60:.1f} min).",
-            "",
-            "Blob isosurfaces (Open3D Flying Edges via `BlobField.isosurface`): particles from "
-            f"N(0, {SPREAD} m) per axis, seed {SEED}, sigma = {SIGMA} m, iso = {ISO}, "
-            f"bounds +-{HALF} m; (particles, resolution) -> triangles: {meshes}. "
-            f"Median of {repeats} calls after one warm-up call; ratio = time / `mesh_report`'s on "
-            "the same mesh. `mesh_report` is NumPy (float64, one thread); "
-            f"Open3D {o3d.__version__}. Open3D's self-intersection test is all-pairs, so it and "
-            f"`is_watertight` (which calls it) run only up to {O3D_PAIRS_MAX:,} triangles. Every "
-            "pair Open3D flags is re-decided exactly with `triangle_pairs_intersect`: a false alarm "
-            "does not meet.",
-            "",
-            md_table(["triangles", "check", "time", "ratio", "verdict"], table),
-            "",
-            machine_section(started),
-        ]
+            ratio = f"{c['seconds'] / ours['seconds']:.3g}"
+            rows.append([f"{r['triangles']:,}", f"Open3D `{name}`", fmt_s(c["seconds"]), ratio, verdict])
+    page = Page(
+        "mesh_check",
+        "Mesh checks: `mesh_report` against Open3D's",
+        args,
+        {
+            "meshes": f"blob surfaces, particles N(0, {SPREAD} m), seed {SEED}, sigma {SIGMA} m, iso {ISO}, "
+            f"(particles, resolution): {', '.join(map(str, meshes))}",
+            "timing": f"median of {repeats} calls after a warm-up; ratio = time / mesh_report's",
+            "notes": f"mesh_report: NumPy, f64, one thread. Open3D's all-pairs self-intersection test (and "
+            f"is_watertight) only up to {O3D_PAIRS_MAX:,} triangles; its flagged pairs re-decided exactly",
+        },
     )
-
-
-def main(argv=None) -> int:
-    args = parse_args(__doc__.splitlines()[0], argv)
-    md_path, out_dir = output_paths(args)
-    started = run_started()
-    ta.init("cpu", log_level=ti.ERROR)
-    t0 = time.perf_counter()
-    meshes, repeats = (MESHES[:2], 3) if args.quick else (MESHES, REPEATS)
-    rows = [measure(n, res, repeats) for n, res in meshes]
-    elapsed = time.perf_counter() - t0
-    publish(md_path, out_dir, "mesh_check", report(rows, args, started, elapsed, repeats), rows, elapsed)
+    page.table("Time and verdicts", ["triangles", "check", "time", "ratio", "verdict"], rows)
+    page.write(data)
     return 0
 
 

@@ -7,10 +7,10 @@ springs of 1000 N/m and 10 kg/s, gravity; frames of 16 symplectic Euler substeps
 `step(model, state, 1/60, 16)` call where the engine has that frame API, else 16 calls) with the
 divergence counter read once per frame and the positions copied to NumPy each frame; f32. Figure: median
 ms per frame over FRAMES frames after WARMUP frames.
-Particles (particles.py's scene and `build`, jitter 0.2): emitter + gravity + container box, symplectic
-Euler at dt = 1/600 s, f32, after the pool has filled. Figure: particle-steps/s over STEPS steps.
+Particles (particles.py's scene, written out so older engines run it): emitter + gravity + container box,
+symplectic Euler at dt = 1/600 s, f32, after the pool has filled. Figure: particle-steps/s over STEPS steps.
 
-Each figure is measured in a fresh process of its engine (PYTHONPATH set to a `git worktree` of the
+Each figure is measured in a fresh process of its engine (PYTHONPATH set to a `git archive` copy of the
 other commit, or this tree), ROUNDS rounds alternating the engines; the table gives the median over
 rounds and the ratio after/before (> 1 is faster for particle-steps/s, < 1 faster for ms/frame).
 
@@ -18,20 +18,18 @@ rounds and the ratio after/before (> 1 is faster for particle-steps/s, < 1 faste
     .venv/bin/python benchmarks/regression.py --before 826e10e --quick
 """
 
-import argparse
 import json
 import os
 import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from common import OtherLoad, engine_fingerprint, load_average, machine_info, machine_table, md_table  # noqa: E402
+from harness import Page, parse_args  # noqa: E402
 
 CLOTH = r"""
 import json, sys, time
@@ -75,22 +73,30 @@ print(json.dumps({"ms_per_frame": ms, "springs": len(pairs), "engine": ta.__file
 PARTICLES = r"""
 import json, sys, time
 import numpy as np, taichi as ti, taichi_anim as ta
-sys.path.insert(0, sys.argv[3])
-import particles as P
 n, steps = int(sys.argv[1]), int(sys.argv[2])
 ta.init("cpu", precision="f32")
-v = P.Variant(jitter=0.2)
-model, state, integ = P.build(n, v)
-for _ in range(v.fill_steps):
-    integ.step(model, state, P.DT)
+b = ta.Builder()
+b.add_particle_emitter(capacity=n, rate=n / 0.5, shape="disc", center=(0, 0.25, 0), radius=0.25,
+    direction=(0, 1, 0), speed=4.0, speed_jitter=0.1, spread=0.5, lifetime=0.5, lifetime_jitter=0.2)
+b.add_force_gravity((0.0, -9.81, 0.0))
+b.add_collider_box((-1, 0, -1), (1, 2, 1), restitution=0.5, friction=0.0)
+model = b.finalize(seed=0)
+state, integ, dt = model.state(), ta.make_integrator("symplectic_euler", check_every=10), 1 / 600
+for _ in range(380):  # the pool fills: the longest first lifetime (0.6 s) has run out
+    integ.step(model, state, dt)
 a = int(state.alive_mask().sum())
 ti.sync(); t0 = time.perf_counter()
 for _ in range(steps):
-    integ.step(model, state, P.DT)
+    integ.step(model, state, dt)
 ti.sync(); wall = time.perf_counter() - t0
-b = int(state.alive_mask().sum())
-print(json.dumps({"particle_steps_per_s": 0.5 * (a + b) * steps / wall, "engine": ta.__file__}))
+rate = 0.5 * (a + int(state.alive_mask().sum())) * steps / wall
+print(json.dumps({"particle_steps_per_s": rate, "engine": ta.__file__}))
 """
+
+
+def short_sha(rev: str) -> str:
+    out = subprocess.run(["git", "rev-parse", "--short", rev], cwd=ROOT, capture_output=True, text=True)
+    return out.stdout.strip() or rev
 
 
 def run(tree: Path, code: str, *args) -> dict:
@@ -105,16 +111,14 @@ def run(tree: Path, code: str, *args) -> dict:
     return result
 
 
-def main() -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--before", required=True, help="commit of the engine before the change")
-    p.add_argument("--quick", action="store_true", help="small sizes, one round, writes benchmarks/out/")
-    p.add_argument("--rounds", type=int, default=3)
-    p.add_argument(
-        "--cloth-sizes", type=int, nargs="*", default=None, help="grid sizes (default 32 64 128 256)"
-    )
-    p.add_argument("--particle-sizes", type=int, nargs="*", default=None, help="default 1e4 ... 1e7")
-    args = p.parse_args()
+def main(argv=None) -> int:
+    def options(p):
+        p.add_argument("--before", required=True, help="commit of the engine before the change")
+        p.add_argument("--rounds", type=int, default=3)
+        p.add_argument("--cloth-sizes", type=int, nargs="*", default=None, help="default 32 64 128 256")
+        p.add_argument("--particle-sizes", type=int, nargs="*", default=None, help="default 1e4 ... 1e7")
+
+    args = parse_args(__doc__, argv, options)
     rounds = 1 if args.quick else args.rounds
     cloth_sizes = (32, 64) if args.quick else (32, 64, 128, 256)
     particle_sizes = (10_000,) if args.quick else (10_000, 100_000, 1_000_000, 10_000_000)
@@ -123,36 +127,26 @@ def main() -> int:
     if args.particle_sizes is not None:
         particle_sizes = tuple(args.particle_sizes)
     warmup, frames, steps = (3, 10, 100) if args.quick else (5, 40, 600)
-    out_dir = ROOT / "benchmarks" / ("out" if args.quick else "results")
-    page = "regression" if args.cloth_sizes is None and args.particle_sizes is None else "regression_subset"
-    out_dir.mkdir(parents=True, exist_ok=True)
-    load_start = load_average()
-    engine = engine_fingerprint()
-    other = OtherLoad()
+    name = "regression" if args.cloth_sizes is None and args.particle_sizes is None else "regression_subset"
     with tempfile.TemporaryDirectory() as tmp:
         old = Path(tmp) / "before"
-        subprocess.run(
-            ["git", "worktree", "add", "--detach", str(old), args.before],
-            cwd=ROOT,
-            check=True,
-            capture_output=True,
-        )
-        try:
-            trees = {"before": old, "after": ROOT}
-            res: dict = {}
-            for r in range(rounds):
-                for dim in cloth_sizes:
-                    for name, tree in trees.items() if r % 2 == 0 else reversed(trees.items()):
-                        fig = run(tree, CLOTH, dim, warmup, frames)["ms_per_frame"]
-                        res.setdefault(("cloth", dim, name), []).append(fig)
-                        print(f"round {r} cloth {dim}^2 {name}: {fig:.3f} ms/frame", flush=True)
-                for n in particle_sizes:
-                    for name, tree in trees.items() if r % 2 == 0 else reversed(trees.items()):
-                        fig = run(tree, PARTICLES, n, steps, tree / "benchmarks")["particle_steps_per_s"]
-                        res.setdefault(("particles", n, name), []).append(fig)
-                        print(f"round {r} particles {n} {name}: {fig:.3e} particle-steps/s", flush=True)
-        finally:
-            subprocess.run(["git", "worktree", "remove", "--force", str(old)], cwd=ROOT, capture_output=True)
+        # A copy of the other commit's files (git archive): nothing in the repository changes.
+        old.mkdir()
+        archive = subprocess.run(["git", "archive", args.before], cwd=ROOT, check=True, capture_output=True)
+        subprocess.run(["tar", "-x", "-C", str(old)], input=archive.stdout, check=True)
+        trees = {"before": old, "after": ROOT}
+        res: dict = {}
+        for r in range(rounds):
+            for dim in cloth_sizes:
+                for engine, tree in trees.items() if r % 2 == 0 else reversed(trees.items()):
+                    fig = run(tree, CLOTH, dim, warmup, frames)["ms_per_frame"]
+                    res.setdefault(("cloth", dim, engine), []).append(fig)
+                    print(f"round {r} cloth {dim}^2 {engine}: {fig:.3f} ms/frame", flush=True)
+            for n in particle_sizes:
+                for engine, tree in trees.items() if r % 2 == 0 else reversed(trees.items()):
+                    fig = run(tree, PARTICLES, n, steps)["particle_steps_per_s"]
+                    res.setdefault(("particles", n, engine), []).append(fig)
+                    print(f"round {r} particles {n} {engine}: {fig:.3e} particle-steps/s", flush=True)
     rows = []
     for kind, sizes, unit in (
         ("cloth", cloth_sizes, "ms/frame"),
@@ -174,7 +168,19 @@ def main() -> int:
                     " / ".join(f"{x:.4g}" for x in res[(kind, s, "after")]),
                 ]
             )
-    table = md_table(
+    page = Page(
+        name,
+        "Before/after: explicit cloth and particles",
+        args,
+        {
+            "before": args.before + f" ({sha})" if (sha := short_sha(args.before)) != args.before else sha,
+            "rounds": f"{rounds}, engines alternating, each figure in a fresh process",
+            "cloth": f"Warp's cloth scene, median of {frames} frames after {warmup}",
+            "particles": f"{steps} steps after the pool filled",
+        },
+    )
+    page.table(
+        "Speed",
         [
             "scene",
             "size",
@@ -186,27 +192,7 @@ def main() -> int:
         ],
         rows,
     )
-    text = (
-        "# Before/after: explicit cloth and particles\n\n"
-        f"Command: `.venv/bin/python {' '.join(sys.argv)}`.".replace(str(ROOT) + "/", "")
-        + f" {rounds} rounds, engines alternating, each figure in a fresh "
-        f"process; cloth: median of {frames} frames after {warmup}; particles: {steps} steps after the pool "
-        f"filled. Load average at start {load_start}, at end {load_average()}.\n\n{table}\n\n"
-        + machine_table(
-            machine_info(),
-            load_start=load_start,
-            load_end=load_average(),
-            date=time.strftime("%Y-%m-%d %H:%M"),
-            engine=engine,
-            other=other,
-        )
-        + "\n"
-    )
-    (out_dir / f"{page}.md").write_text(text)
-    (out_dir / f"{page}.json").write_text(
-        json.dumps({f"{k[0]} {k[1]} {k[2]}": v for k, v in res.items()}, indent=1)
-    )
-    print(text)
+    page.write({f"{k[0]} {k[1]} {k[2]}": v for k, v in res.items()})
     return 0
 
 

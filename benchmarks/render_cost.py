@@ -16,32 +16,16 @@ flat discs of 2 px (1.5 px for the spheres, as that demo drew them), flat-shaded
 order, the PNG written by ti.GUI (its only output). Each figure is the median of REPEATS calls after one
 warm-up call, `ti.sync()` before each clock read; float32, Taichi's default CPU threads.
 
-    .venv/bin/python benchmarks/render_cost.py          # the "render_cost" section of RESULTS.md and
-                                                        # results/render_cost.{md,json} (~2 min)
-    .venv/bin/python benchmarks/render_cost.py --quick  # 10^4 spheres, 32^2 cloth, benchmarks/out/
+    .venv/bin/python benchmarks/render_cost.py [--quick]   # --quick: 10^4 spheres, 32^2 cloth
 """
 
-import re
 import statistics
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
-import taichi as ti
-from common import (
-    clock,
-    command_line,
-    fmt_s,
-    machine_section,
-    md_table,
-    output_paths,
-    parse_args,
-    publish,
-    run_started,
-)
+from harness import Page, clock, fmt_s, init, parse_args
 
-import taichi_anim as ta
 from taichi_anim.render import render_items, write_png
 from taichi_anim.scenes import make_scene
 from taichi_anim.scenes.content import Lines, Mesh, Points
@@ -122,8 +106,37 @@ def measure(name: str, scene, folder: Path) -> dict:
     return row
 
 
-def report(rows, args, started, elapsed: float) -> str:
-    table = md_table(
+def main(argv=None) -> int:
+    args = parse_args(__doc__, argv)
+    init("f32")
+    with tempfile.TemporaryDirectory() as tmp:
+        data = [measure(name, scene, Path(tmp)) for name, scene in frames(args.quick)]
+    rows = [
+        [
+            r["workload"],
+            f"{r['spheres']:,}",
+            f"{r['triangles']:,}",
+            fmt_s(r["old_gui_png_s"]),
+            fmt_s(r["new_2x2_s"]),
+            fmt_s(r["new_2x2_png_s"]),
+            fmt_s(r["new_1x1_s"]),
+            f"{r['ratio_new_png_over_old']:.2f}",
+            fmt_s(r["new_compile_s"]),
+        ]
+        for r in data
+    ]
+    page = Page(
+        "render_cost",
+        "Render cost per frame",
+        args,
+        {
+            "frames": "spheres demo's first frame; cloth demo (64², --quick 32²) after 30 frames; blobs",
+            "image": f"{RESOLUTION[0]} x {RESOLUTION[1]} px, each demo's camera and colours, f32",
+            "repeats": f"median of {REPEATS} calls after a first call (whose extra time is the compile)",
+        },
+    )
+    page.table(
+        "Per frame",
         [
             "frame",
             "spheres / points",
@@ -133,45 +146,11 @@ def report(rows, args, started, elapsed: float) -> str:
             "new 2x2 + PNG",
             "new 1x1, image",
             "new (2x2 + PNG) / ti.GUI",
-            "new: first call's extra time (JIT of kernels this frame uses first)",
+            "new: first call's extra time",
         ],
-        [
-            [
-                r["workload"],
-                f"{r['spheres']:,}",
-                f"{r['triangles']:,}",
-                fmt_s(r["old_gui_png_s"]),
-                fmt_s(r["new_2x2_s"]),
-                fmt_s(r["new_2x2_png_s"]),
-                fmt_s(r["new_1x1_s"]),
-                f"{r['ratio_new_png_over_old']:.2f}",
-                fmt_s(r["new_compile_s"]),
-            ]
-            for r in rows
-        ],
+        rows,
     )
-    return "\n\n".join(
-        [
-            "# Render cost per frame",
-            f"Regenerate: `{command_line(args, 'render_cost.py')}` ({elapsed / 60:.1f} min).",
-            re.sub(r"\n(?!- )", " ", __doc__.split("\n\n")[1]).replace("  ", " "),
-            f"{RESOLUTION[0]} x {RESOLUTION[1]} pixels; median of {REPEATS} calls after a warm-up.",
-            table,
-            machine_section(started),
-        ]
-    )
-
-
-def main(argv=None) -> int:
-    args = parse_args(__doc__.splitlines()[0], argv)
-    md_path, out_dir = output_paths(args)
-    started = run_started()
-    ta.init("cpu", log_level=ti.ERROR)
-    t0 = time.perf_counter()
-    with tempfile.TemporaryDirectory() as tmp:
-        rows = [measure(name, scene, Path(tmp)) for name, scene in frames(args.quick)]
-    elapsed = time.perf_counter() - t0
-    publish(md_path, out_dir, "render_cost", report(rows, args, started, elapsed), rows, elapsed)
+    page.write(data)
     return 0
 
 

@@ -11,31 +11,23 @@ self-contact solver's part (its calls wrapped by a synchronised clock), median o
 
 Part 2, against Newton (`newton`): the same scene at 33 x 33 vertices per sheet (32 x 32 cells), 1/60 s
 frames of 10 steps, implicit Euler, FRAMES frames; Newton's SolverVBD with self-contact (its settings in
-benchmarks/peers/newton_vbd.py) on the same sheets, ball and floor in the same process, with and without
-self-contact. Per frame: wall time (JIT compile reported apart: the first frame) and the crossing
-triangle pairs (non-adjacent triangles that intersect, counted by the exact test of
-taichi_anim.spatial.crossings on every frame, outside the timed region).
+benchmarks/peers/newton_vbd.py, extra `newton`) on the same sheets, ball and floor in the same process,
+with and without self-contact. Per frame: wall time (JIT compile reported apart: the first frame) and
+the crossing triangle pairs (non-adjacent triangles that intersect, counted by the exact test of
+taichi_anim.spatial on every frame, outside the timed region).
 
-    .venv/bin/python benchmarks/self_contact.py            # both parts: results/self_contact.md, RESULTS.md
-    .venv/bin/python benchmarks/self_contact.py --quick    # smoke run into benchmarks/out/
+    .venv/bin/python benchmarks/self_contact.py [--quick] [--part share|newton]
 """
 
-import argparse
-import json
 import statistics
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
+from harness import Page, clock, init, log, parse_args, peer
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import common  # noqa: E402
-
-import taichi_anim as ta  # noqa: E402
-from taichi_anim.scenes.layers import build_model  # noqa: E402
-from taichi_anim.spatial.crossings import intersecting_triangle_pairs  # noqa: E402
+import taichi_anim as ta
+from taichi_anim.scenes.layers import build_model
+from taichi_anim.spatial import intersecting_triangle_pairs
 
 FRAME_DT = 1.0 / 60.0
 SUBSTEPS = 10
@@ -56,9 +48,9 @@ def timed_contact(stepper) -> list:
 
     def timed(fn):
         def call(*args):
-            t0 = common.clock()
+            t0 = clock()
             fn(*args)
-            spent[0] += common.clock() - t0
+            spent[0] += clock() - t0
 
         return call
 
@@ -74,9 +66,9 @@ def measure_steps(model, state, integrator, dt: float, steps: int) -> dict:
     totals, parts = [], []
     for _ in range(steps):
         spent[0] = 0.0
-        t0 = common.clock()
+        t0 = clock()
         integrator.step(model, state, dt)
-        totals.append(common.clock() - t0)
+        totals.append(clock() - t0)
         parts.append(spent[0])
     stats = stepper.self_contact.read_stats()
     total, part = statistics.median(totals), statistics.median(parts)
@@ -90,7 +82,7 @@ def measure_steps(model, state, integrator, dt: float, steps: int) -> dict:
 
 
 def share(n: int, quick: bool, broad_phase: str = "auto", explicit: bool = True) -> dict:
-    common.log(f"share: n = {n}, broad phase {broad_phase}")
+    log(f"share: n = {n}, broad phase {broad_phase}")
     # Finer sheets put more primitives within a thickness of a vertex: larger pair lists.
     model = build_model(
         layers=2, resolution=n, broad_phase=broad_phase, pairs_per_vertex=256 if n > 64 else 128
@@ -112,7 +104,7 @@ def share(n: int, quick: bool, broad_phase: str = "auto", explicit: bool = True)
         state.particle_x.from_numpy(snap[0])
         state.particle_v.from_numpy(snap[1])
         out[name] = measure_steps(model, state, integ, dt, 4 if quick else STEPS)
-        common.log(f"  {name}: {out[name]}")
+        log(f"  {name}: {out[name]}")
     return out
 
 
@@ -123,10 +115,10 @@ def ours_frames(frames: int, **options) -> dict:
     integ = implicit()
     times, cpu, crossings = [], [], []
     for _ in range(frames + 1):
-        t0, c0 = common.clock(), time.process_time()
+        t0, c0 = clock(), time.process_time()
         for _ in range(SUBSTEPS):
             integ.step(model, state, FRAME_DT / SUBSTEPS)
-        times.append(common.clock() - t0)
+        times.append(clock() - t0)
         cpu.append(time.process_time() - c0)
         x = state.particle_x.to_numpy().astype(np.float64)
         crossings.append(len(intersecting_triangle_pairs(x, model.triangles)))
@@ -140,16 +132,14 @@ def ours_frames(frames: int, **options) -> dict:
 
 def newton_part(frames: int) -> dict:
     """Ours and Newton's VBD (with and without self-contact), one after the other in this process."""
-    sys.path.insert(0, str(Path(__file__).resolve().parent / "peers"))
-    import newton_vbd
-
     results = {"taichi_anim": ours_frames(frames)}
-    common.log("taichi_anim: proximity only, and without self-contact")
+    log("taichi_anim: proximity only, and without self-contact")
     results["taichi_anim_proximity_only"] = ours_frames(frames, guard=False)
     results["taichi_anim_no_self_contact"] = ours_frames(frames, self_contact=False)
-    for contact in (True, False):
+    newton_vbd = peer("newton_vbd", extra="newton")
+    for contact in (True, False) if newton_vbd else ():
         key = f"newton_vbd{'' if contact else '_no_self_contact'}"
-        common.log(f"newton: self_contact={contact}")
+        log(f"newton: self_contact={contact}")
         r = newton_vbd.run(frames, contact)
         results[key] = {
             "first_frame_s": r["warmup_s"],  # a first instance run for one frame: Warp's compile
@@ -172,121 +162,79 @@ def summary(frames: dict) -> dict:
     }
 
 
-def report(shares: list, newton: dict | None, args, load0: str, other) -> str:
-    info = common.machine_info()
-    part = "" if args.part == "all" else f" --part {args.part}"
-    lines = [
-        "## Cloth self-contact (`benchmarks/self_contact.py`)",
-        "",
-        f"Command: `{common.command_line(args, 'self_contact.py')}{part}`. Settings: the script's docstring.",
-        "",
-        "### Share of the step",
-        "",
+def main(argv=None) -> None:
+    def options(p):
+        p.add_argument("--part", choices=["all", "share", "newton"], default="all")
+
+    args = parse_args(__doc__, argv, options)
+    init("f32")
+    shares = (
+        [share(n, args.quick) for n in ((16, 24) if args.quick else (64, 128))]
+        if args.part != "newton"
+        else []
+    )
+    frames, run_up, steps = (3, 0.05, 4) if args.quick else (FRAMES, RUN_UP, STEPS)
+    newton = newton_part(frames) if args.part != "share" else {}
+    page = Page(
+        "self_contact" + ("" if args.part == "all" else f"_{args.part}"),
+        "Cloth self-contact",
+        args,
+        {
+            "share": f"layers scene, 2 sheets of n² vertices, run up to {run_up} s by implicit Euler, then "
+            f"{steps} steps timed: implicit Euler (PCG 1e-4) at 1/600 s, symplectic Euler at 0.4 sqrt(m/k)",
+            "against Newton": f"layers scene, 2 x 33², 1/60 s frames of {SUBSTEPS} implicit steps, {frames} "
+            "frames; Newton's SolverVBD (peers/newton_vbd.py) on the same sheets; crossings counted untimed",
+        },
+    )
+    rows = [
+        [
+            f"2 x {s['n']}²",
+            name,
+            f"{s[name]['dt']:.3g}",
+            f"{s[name]['ms_step']:.2f}",
+            f"{s[name]['ms_contact']:.2f}",
+            f"{100 * s[name]['share']:.0f}%",
+            s[name]["pairs"],
+        ]
+        for s in shares
+        for name in ("implicit Euler", "symplectic Euler")
+        if name in s
     ]
-    rows = []
-    for s in shares:
-        for name in ("implicit Euler", "symplectic Euler"):
-            if name not in s:
-                continue
-            r = s[name]
-            rows.append(
-                [
-                    f"2 x {s['n']}^2",
-                    s["broad_phase"],
-                    name,
-                    common.fmt_dt(r["dt"]),
-                    f"{r['ms_step']:.2f}",
-                    f"{r['ms_contact']:.2f}",
-                    f"{100 * r['share']:.0f}%",
-                    r["pairs"],
-                ]
-            )
-    lines.append(
-        common.md_table(
+    if rows:
+        page.table(
+            "Share of the step",
+            ["sheets", "method", "dt [s]", "ms/step", "self-contact ms/step", "share", "proximity pairs"],
+            rows,
+        )
+    base = summary(newton["taichi_anim"])["median_ms"] if newton else None
+    rows = [
+        [
+            k,
+            f"{s['median_ms']:.0f}",
+            f"{s['cpu_ms']:.0f}",
+            f"{r['first_frame_s']:.1f}",
+            s["max_crossings"],
+            s["frames_with_crossings"],
+            f"{s['median_ms'] / base:.2f}",
+        ]
+        for k, r in newton.items()
+        for s in (summary(r),)
+    ]
+    if rows:
+        page.table(
+            "Stacked sheets against Newton's VBD (same run)",
             [
-                "sheets",
-                "broad phase",
-                "method",
-                "dt",
-                "ms/step",
-                "self-contact ms/step",
-                "share",
-                "proximity pairs",
+                "solver",
+                "median ms/frame",
+                "CPU ms/frame",
+                "first frame (compile) s",
+                "max crossing pairs",
+                "frames with crossings",
+                "time / taichi_anim",
             ],
             rows,
         )
-    )
-    if newton:
-        lines += ["", "### Stacked sheets against Newton's VBD (same run)", ""]
-        base = summary(newton["taichi_anim"])["median_ms"]
-        rows = []
-        for key, r in newton.items():
-            s = summary(r)
-            rows.append(
-                [
-                    key,
-                    f"{s['median_ms']:.0f}",
-                    f"{s['mean_ms']:.0f}",
-                    f"{s['cpu_ms']:.0f}",
-                    f"{r['first_frame_s']:.1f}",
-                    s["max_crossings"],
-                    s["frames_with_crossings"],
-                    f"{s['median_ms'] / base:.2f}",
-                ]
-            )
-        lines.append(
-            common.md_table(
-                [
-                    "solver",
-                    "median ms/frame",
-                    "mean ms/frame",
-                    "CPU ms/frame (all threads)",
-                    "first frame (compile) s",
-                    "max crossing pairs in a frame",
-                    "frames with crossings",
-                    "time / taichi_anim",
-                ],
-                rows,
-            )
-        )
-    lines += [
-        "",
-        common.machine_table(
-            info,
-            load_start=load0,
-            load_end=common.load_average(),
-            date=time.strftime("%Y-%m-%d"),
-            engine=common.engine_fingerprint(),
-            other=other,
-        ),
-    ]
-    return "\n".join(lines)
-
-
-def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--quick", action="store_true")
-    p.add_argument("--out", type=Path, default=None)
-    p.add_argument("--part", choices=["all", "share", "newton"], default="all")
-    args = p.parse_args(argv)
-    md, folder = common.output_paths(args)
-    folder.mkdir(parents=True, exist_ok=True)
-    load0, other = common.load_average(), common.OtherLoad()
-    common.init("f32")
-    shares = []
-    if args.part in ("all", "share"):
-        shares = [share(n, args.quick) for n in ((16, 24) if args.quick else (64, 128))]
-        # The box structures of spatial/select.py on the Newton scene's sheets (implicit steps only).
-        shares += [share(17 if args.quick else 33, args.quick, bp) for bp in ("bvh", "grid", "octree")]
-    newton = None
-    if args.part in ("all", "newton"):
-        newton = newton_part(3 if args.quick else FRAMES)
-    name = "self_contact" + ("" if args.part == "all" else f"_{args.part}")
-    (folder / f"{name}.json").write_text(json.dumps({"share": shares, "newton": newton}, indent=1))
-    text = report(shares, newton, args, load0, other)
-    (folder / f"{name}.md").write_text(text + "\n")
-    common.write_section(md, name, text)
-    print(text)
+    page.write({"share": shares, "newton": newton})
 
 
 if __name__ == "__main__":

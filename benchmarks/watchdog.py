@@ -3,11 +3,10 @@ into the particle finish and without them (TAICHI_ANIM_WATCHDOG_BOUNDS=0 when th
 leaves the old non-finite test only), on 10^6 free particles in a box and on a 128^2 mass-spring cloth,
 both symplectic Euler, float32. The two states share the model and the integrator and are timed in
 alternating blocks (warm-up and JIT excluded, `ti.sync()` before each clock read); the ratio is what to
-read. Also: one energy evaluation (what the watchdog does every `energy_every` = 100 steps by default,
-amortised per step) and a step under the "retry" policy (a backup copy of the state and a counter read
-every step, and the energy every step).
+read. Also a step under the "retry" policy (a backup copy of the state and a counter read every step,
+and the energy every step).
 
-Run: `.venv/bin/python benchmarks/watchdog.py [--quick]`; writes benchmarks/results/watchdog.md.
+    .venv/bin/python benchmarks/watchdog.py [--quick]
 """
 
 import os
@@ -15,7 +14,7 @@ import statistics
 import time
 
 import numpy as np
-from common import clock, command_line, init, load_average, log, machine_info, md_table, parse_args
+from harness import Page, clock, init, log, parse_args
 
 import taichi_anim as ta
 
@@ -70,13 +69,6 @@ def measure(name: str, model, dt: float, steps: int) -> dict:
     for _ in range(ROUNDS):
         on.append(ms_per_step(integ, model, with_bounds, dt, steps))
         off.append(ms_per_step(integ, model, without, dt, steps))
-    energy = integ.stepper_for(model).watchdog._energy
-    energy_ms = float("nan")
-    if energy is not None:
-        energy(with_bounds)  # compiles the copies to NumPy and the element energies
-        t0 = time.perf_counter()
-        energy(with_bounds)
-        energy_ms = (time.perf_counter() - t0) * 1e3
     retry = ta.make_integrator("symplectic_euler", check_every=CHECK_EVERY, policy={"divergence": "retry"})
     rs = model.state()
     ms_per_step(retry, model, rs, dt, 2)
@@ -90,72 +82,54 @@ def measure(name: str, model, dt: float, steps: int) -> dict:
         "on": min(on),
         "off_median": statistics.median(off),
         "on_median": statistics.median(on),
-        "energy_ms": energy_ms,
         "retry": retry_ms,
     }
     log(row)
     return row
 
 
-def main() -> None:
-    args = parse_args(__doc__.split("\n")[0])
+def main(argv=None) -> None:
+    args = parse_args(__doc__, argv)
     init("f32")
-    load0 = load_average()
     n_particles, n_cloth, steps = (10**5, 64, 50) if args.quick else (10**6, 128, 100)
-    rows = []
-    for name, (model, dt) in (
-        (f"particles 10^{round(np.log10(n_particles))}", particles(n_particles)),
-        (f"cloth {n_cloth}^2", cloth(n_cloth)),
-    ):
-        rows.append(measure(name, model, dt, steps))
-    table = md_table(
+    data = [
+        measure(f"particles 10^{round(np.log10(n_particles))}", *particles(n_particles), steps),
+        measure(f"cloth {n_cloth}^2", *cloth(n_cloth), steps),
+    ]
+    rows = [
+        [
+            r["scene"],
+            r["particles"],
+            f"{r['off']:.3f} / {r['off_median']:.3f}",
+            f"{r['on']:.3f} / {r['on_median']:.3f}",
+            f"{r['on'] / r['off']:.3f} ({r['on_median'] / r['off_median']:.3f})",
+            f"{r['retry']:.3f}",
+        ]
+        for r in data
+    ]
+    page = Page(
+        "watchdog",
+        "Divergence watchdog: cost",
+        args,
+        {
+            "step": f"symplectic Euler, f32, check_every = {CHECK_EVERY}",
+            "blocks": f"{steps} steps per block, {ROUNDS} alternating blocks per variant (fastest / median); "
+            f"policy retry: median of 3 blocks of {max(steps // 4, 5)} steps",
+        },
+    )
+    page.table(
+        "ms per step",
         [
             "scene",
             "particles",
-            "ms/step without bounds (min / median)",
-            "ms/step with bounds (min / median)",
+            "without bounds (min / median)",
+            "with bounds (min / median)",
             "ratio of minima (of medians)",
-            "energy evaluation [ms] (/100 steps)",
-            "ms/step, policy retry",
+            "policy retry",
         ],
-        [
-            [
-                r["scene"],
-                r["particles"],
-                f"{r['off']:.3f} / {r['off_median']:.3f}",
-                f"{r['on']:.3f} / {r['on_median']:.3f}",
-                f"{r['on'] / r['off']:.3f} ({r['on_median'] / r['off_median']:.3f})",
-                f"{r['energy_ms']:.2f} ({r['energy_ms'] / 100:.3f}/step)",
-                f"{r['retry']:.3f}",
-            ]
-            for r in rows
-        ],
+        rows,
     )
-    info = machine_info()
-    text = "\n\n".join(
-        [
-            "# Divergence watchdog: cost",
-            __doc__.split("\n\n")[0].replace("\n", " "),
-            f"Settings: symplectic Euler, float32, `check_every` = {CHECK_EVERY}; {steps} steps per block, "
-            f"{ROUNDS} alternating blocks per variant, the fastest and the median block shown; policy "
-            f"retry: median of 3 blocks of {max(steps // 4, 5)} steps. "
-            f"Command: `{command_line(args, 'watchdog.py')}`.",
-            table,
-            md_table(["machine", "value"], [[k, v] for k, v in info.items()])
-            + f"\n\nLoad average at start / end: {load0} / {load_average()} (a shared 2-core machine: read "
-            "ratios, not absolute figures).",
-        ]
-    )
-    out = (args.out or ta_results_dir(args.quick)) / "watchdog.md"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(text + "\n")
-    print(text)
-
-
-def ta_results_dir(quick: bool):
-    from common import QUICK_DIR, RESULTS_DIR
-
-    return QUICK_DIR if quick else RESULTS_DIR
+    page.write(data)
 
 
 if __name__ == "__main__":

@@ -111,7 +111,7 @@ class Model:
         # Small scenes are launch-bound on the CPU: their loops run serially (compile-time). A particle's
         # work grows with its element entries (2 per spring), each about an eighth of a particle's update
         # with colliders: parallel loops pay from ~2e4 particles (benchmarks/particles.py) and from ~128^2
-        # mass-spring cloth (benchmarks/layout.py: 0.59x at 64^2, 1.01x at 128^2, 1.38x at 256^2).
+        # mass-spring cloth (benchmarks/results/layout.md: 0.59x at 64^2, 1.01x at 128^2, 1.38x at 256^2).
         entries = sum(t.entry_count for t in self.element_terms)
         self.work = n + entries  # the size that decides fused frames (Stepper.frame_mode)
         self.serial = serial_loops(n + entries // 8)

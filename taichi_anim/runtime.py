@@ -186,7 +186,7 @@ def backend_name() -> str:
 
 # Below this many elements a CPU loop runs on one thread: a parallel launch costs ~200 us more than a
 # serial one on a 2-core CPU, more than small loops gain from the second core (measured in
-# benchmarks/particles.py, "serial threshold").
+# benchmarks/results/particles_study.md, "serial threshold").
 CPU_SERIAL_BELOW = 20_000
 
 

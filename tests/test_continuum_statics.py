@@ -7,8 +7,8 @@
    the StVK membrane (FabricMaterial); mass-spring cloth (ClothMaterial) converges too on regular grids,
    but an irregular mesh gives it a different material (the "mesh influence" of springs).
 
-benchmarks/cloth_continuum.py runs the same scenes further (64 cells, point pins, square cells, the solver
-before and after its line search) and writes benchmarks/results/cloth_continuum.md. Several meshes share
+benchmarks/results/cloth_continuum.md records the same scenes run further (64 cells, point pins, square cells,
+the solver before and after its line search). Several meshes share
 one model here (side by side, not touching): each model compiles its kernels once, which is most of the
 time these tests take.
 """

@@ -27,7 +27,7 @@ from ..runtime import data_oriented, serial_loops
 from .prefix_sum import PrefixSum
 
 # Below these many particles brute force (build + one query pass) beats the bounded grid / the hashed
-# grid on this project's 2-core CPU (benchmarks/neighbors.py, results/neighbors.md).
+# grid on this project's 2-core CPU (benchmarks/neighbors.py; the study: results/neighbors_study.md).
 CROSSOVER_N = 120
 CROSSOVER_N_HASHED = 1100
 # A bounded grid keeps at most this many cells per particle (bigger cells beyond it): the counting

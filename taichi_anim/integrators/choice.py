@@ -10,7 +10,7 @@ cost of one symplectic Euler step):
   gradient iterations (CG_ITERATION evaluations each). I is bounded by the CG error bound (Shewchuk 1994,
   eq. 55: iterations <= sqrt(kappa) ln(2 / tol) / 2) with kappa ~ 1 + (h omega)^2 for M + h^2 K, times
   CG_BOUND_SHARE, the share of the bound PCG used on the cloth demos, capped at max_iterations.
-The constants were measured by benchmarks/auto_choice.py on the cloth, drape and flag demos (per-step
+The constants were measured (benchmarks/results/auto_choice.md) on the cloth, drape and flag demos (per-step
 times and iterations, 2-core CPU); the same benchmark checks that the chosen method is the one measured
 fastest per frame. The estimate costs one Lanczos run (~0.1-1 s); the choice, its reason and every
 candidate's estimated cost go into the run's settings (`Choice.record`).

@@ -18,7 +18,7 @@ Large Time Steps", SCA 2014 / TVCG 2015) make the same globalisation of Newton o
 step, with an energy as the merit function. The iteration stops when |g|_{M^-1} <= newton_tol times its
 value at v0 (or the absolute floor newton_tol h g sqrt(sum m)); a loop that ends at its cap is reported
 to the run's Health as non-convergence, as is every linear solve that ends at max_iterations.
-Two limits, measured (benchmarks/cloth_newton.py): where springs are compressed their Hessian is
+Two limits, measured (benchmarks/results/cloth_newton.md): where springs are compressed their Hessian is
 projected (axial part only), so convergence is linear there and a newton_tol much below 1e-3 stalls
 (default 1e-2, reached in 2-5 iterations on stiff cloth at dt = 1/60 s); and the merit is the residual,
 not an energy, so an energy decrease is observed (stiff cloth at dt = 1/60 s), not guaranteed.

@@ -24,7 +24,7 @@ CPU_BLOCK = 256  # rows per block on the CPU (fixed, so results do not depend on
 # Below this many rows the block loops run serially on the CPU: a parallel loop costs ~70-80 us more than
 # a serial one here (thread-pool round trip, paid even when the loop is a single task), more than a
 # 4096-row loop's work; above it the loops are spread over real tasks (bind). Measured on the scene of
-# benchmarks/cloth_implicit.py (PCG tol 1e-3): 64^2 94 steps/s serial against 71 spread; 128^2 26.3
+# benchmarks/results/cloth_implicit.md (PCG tol 1e-3): 64^2 94 steps/s serial against 71 spread; 128^2 26.3
 # serial against 30.3 spread.
 CPU_PARALLEL_ROWS = 8192
 TASK_ITEMS = 512  # Taichi's CPU range-for splits a loop into tasks of at least this many iterations

@@ -4,9 +4,9 @@ Mass-spring cloth (Provot 1995's stretch, shear and bend springs); each frame ex
 mesh with area-weighted vertex normals. The default integrator="auto" steps it with the cheapest method
 stable at the frame's step (integrators/choice.py; here symplectic Euler at its stability limit, 21-30
 ms per frame against 41 ms for linearised backward Euler with PCG, Baraff & Witkin 1998, eq. 6, at 4
-steps per frame: benchmarks/auto_choice.py). With `--integrator` set to a fixed-step explicit method the
-step shrinks to that method's stability limit for the stiffest spring, so every integrator runs the same
-scene."""
+steps per frame: benchmarks/results/auto_choice.md). With `--integrator` set to a fixed-step explicit
+method the step shrinks to that method's stability limit for the stiffest spring, so every integrator runs
+the same scene."""
 
 import math
 

@@ -4,9 +4,9 @@ Continuum cloth: a Saint Venant–Kirchhoff triangle membrane (Volino et al. 200
 bending (Grinspun et al. 2003) on a grid mesh, pinned along the pole, blown by per-triangle flat-plate
 drag and lift against a gusting wind, stepped by linearised backward Euler with PCG (Baraff & Witkin
 1998): what integrator="auto" (integrators/choice.py) chooses for it too, since the aerodynamic damping
-would hold symplectic Euler to thousands of substeps (benchmarks/auto_choice.py); the default skips the
-choice's frequency estimate, which needs the membrane's probe kernels compiled. Each frame exports the
-flag as a PLY mesh with vertex normals."""
+would hold symplectic Euler to thousands of substeps (benchmarks/results/auto_choice.md); the
+default skips the choice's frequency estimate, which needs the membrane's probe kernels compiled. Each
+frame exports the flag as a PLY mesh with vertex normals."""
 
 import numpy as np
 

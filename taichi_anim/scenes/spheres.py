@@ -53,8 +53,8 @@ def build(
     the wall time, 12.0 against 10.6 s per frame run side by side on a shared 2-core CPU). On an earlier
     wide, low column (0.8 m wide, 0.37 m tall) 200 x 1 kept 0.94 d, 160 x 1 0.904 d and 80 x 1
     0.75-0.84 d; more sweeps cost more per unit of separation gained (80 x 4 kept 0.93 d at 20,000
-    spheres, as 160 x 1 did; benchmarks/sphere_demo.py). benchmarks/sphere_piles.py shows the largest
-    overlap left in a settled pile against dt and sweeps."""
+    spheres, as 160 x 1 did; benchmarks/results/sphere_demo.md). benchmarks/results/sphere_piles.md
+    shows the largest overlap left in a settled pile against dt and sweeps."""
     rng = np.random.default_rng(seed)
     spacing = 2.2 * radius
     # A narrow column (at most 36 spheres = 0.47 m wide for 6 mm spheres) so that it pours onto a heap;

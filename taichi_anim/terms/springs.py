@@ -51,7 +51,7 @@ class SpringCache:
         self.ab = ti.Vector.field(2, float, count) if implicit else None
         # (n, axial, transverse) again per adjacency entry (2S,), in the order the matrix-vector product
         # reads them: its loop then streams one array instead of chasing each entry's spring index
-        # (the product runs ~40 times per implicit step, the copy once; benchmarks/cloth_implicit.py).
+        # (the product runs ~40 times per implicit step, the copy once; benchmarks/results/cloth_implicit.md).
         self.entry = ti.Vector.field(5, float, 2 * count) if implicit else None
         self.kxv = ti.Vector.field(3, float, count) if implicit else None
 
