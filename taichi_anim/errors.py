@@ -62,7 +62,7 @@ class RunInterrupted(KeyboardInterrupt):
 
     def __init__(self, signum: int, *, frames_done=None, frames=None, forced: bool = False):
         self.signal_number = int(signum)
-        self.signal = signal_name(signum)
+        self.signal = _signal_name(signum)
         self.forced = forced
         self.frames_done = frames_done
         self.frames = frames
@@ -80,7 +80,7 @@ class RunInterrupted(KeyboardInterrupt):
         return 128 + self.signal_number
 
 
-def signal_name(signum: int) -> str:
+def _signal_name(signum: int) -> str:
     """ "SIGTERM" for 15, and so on ("signal N" for a number without a name)."""
     try:
         return signal.Signals(signum).name

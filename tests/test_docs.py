@@ -1,9 +1,11 @@
 """The documentation is tested like code: every ```python block of README.md and of the guide
 (docs/**/*.md) runs, the Sphinx build (guide + API reference from the docstrings) has no warning, and
-every public name is in the API reference with a docstring."""
+every public name is in the API reference with a docstring. A guide page's blocks build on each other;
+each README block must run on its own, as a reader who copies one would run it."""
 
 import importlib
 import inspect
+import os
 import re
 import subprocess
 import sys
@@ -12,12 +14,15 @@ import types
 from pathlib import Path
 
 import pytest
+import taichi as ti
 
 import taichi_anim
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs"
 MARKDOWN = [ROOT / "README.md"] + sorted(p for p in DOCS.rglob("*.md") if "_build" not in p.parts)
+# Pages whose blocks each run on their own: a fresh namespace, an empty folder, Taichi not initialised.
+STANDALONE_BLOCKS = {ROOT / "README.md"}
 
 # Modules whose public names the API reference must cover: their __all__, or else every public name
 # defined in the module itself.
@@ -70,10 +75,29 @@ def _shown(page: Path) -> str:
     return str(page.relative_to(ROOT)) if page.is_relative_to(ROOT) else page.name
 
 
-def run_page(page: Path, folder: Path) -> None:
-    """Run the page's python blocks in order in one module namespace. The blocks are written to a file
-    at their line numbers in the page, so tracebacks name page lines and Taichi (which reads a kernel's
-    source) finds the code."""
+def _run_block(page: Path, source: Path, start: int, code: str, module: types.ModuleType) -> None:
+    compiled = compile("\n" * (start - 1) + code, str(source), "exec")
+    try:
+        exec(compiled, module.__dict__)
+    except Exception as e:
+        tb = traceback.extract_tb(e.__traceback__)
+        line = max((f.lineno for f in tb if f.filename == str(source)), default=start)
+        detail = "".join(traceback.format_exception(e)[-12:])
+        pytest.fail(
+            f"{_shown(page)}:{line}: the python block starting at line {start} raised "
+            f"{type(e).__name__}: {e}\n{detail}",
+            pytrace=False,
+        )
+
+
+def run_page(page: Path, folder: Path, *, standalone: bool = False) -> None:
+    """Run the page's python blocks in order in one module namespace, in `folder` (the caller's working
+    directory). The blocks are written to a file at their line numbers in the page, so tracebacks name
+    page lines and Taichi (which reads a kernel's source) finds the code.
+
+    standalone: each block runs as if it were the whole program: in a namespace of its own, in an empty
+    folder of its own under `folder`, with Taichi reset (a block that needs a backend or a precision must
+    start it), so no block can lean on a name, a file or a runtime an earlier block left."""
     blocks = python_blocks(page.read_text())
     assert blocks, f"{page.name} has no python block"
     lines = [""] * (max(start + code.count("\n") for start, code in blocks) + 1)
@@ -82,26 +106,24 @@ def run_page(page: Path, folder: Path) -> None:
             lines[start - 1 + j] = line
     source = folder / f"_docs_{page.stem}.py"
     source.write_text("\n".join(lines) + "\n")
-    name = f"_docs_{page.stem}"
-    module = types.ModuleType(name)
-    module.__file__ = str(source)
-    sys.modules[name] = module  # dataclasses and Taichi look modules up by name
-    try:
-        for start, code in blocks:
-            compiled = compile("\n" * (start - 1) + code, str(source), "exec")
-            try:
-                exec(compiled, module.__dict__)
-            except Exception as e:
-                tb = traceback.extract_tb(e.__traceback__)
-                line = max((f.lineno for f in tb if f.filename == str(source)), default=start)
-                detail = "".join(traceback.format_exception(e)[-12:])
-                pytest.fail(
-                    f"{_shown(page)}:{line}: the python block starting at line {start} raised "
-                    f"{type(e).__name__}: {e}\n{detail}",
-                    pytrace=False,
-                )
-    finally:
-        del sys.modules[name]
+    groups = [[b] for b in blocks] if standalone else [blocks]
+    cwd = Path.cwd()
+    for k, group in enumerate(groups):
+        name = f"_docs_{page.stem}" + (f"_{k}" if standalone else "")
+        module = types.ModuleType(name)
+        module.__file__ = str(source)
+        sys.modules[name] = module  # dataclasses and Taichi look modules up by name
+        try:
+            if standalone:
+                ti.reset()
+                own = folder / f"block_{group[0][0]}"
+                own.mkdir()
+                os.chdir(own)
+            for start, code in group:
+                _run_block(page, source, start, code, module)
+        finally:
+            os.chdir(cwd)
+            del sys.modules[name]
 
 
 # Pages with examples (an index or a page of prose only has none).
@@ -111,7 +133,7 @@ PAGES = [p for p in MARKDOWN if python_blocks(p.read_text())]
 @pytest.mark.parametrize("page", PAGES, ids=[_shown(p) for p in PAGES])
 def test_examples_run(page, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    run_page(page, tmp_path)
+    run_page(page, tmp_path, standalone=page in STANDALONE_BLOCKS)
 
 
 def test_a_failing_block_names_its_line(tmp_path):
@@ -119,6 +141,28 @@ def test_a_failing_block_names_its_line(tmp_path):
     page.write_text("# t\n\n```python\nx = 1\n```\n\n```python\ny = x + 1\nassert y == 3\n```\n")
     with pytest.raises(pytest.fail.Exception, match=r"page.md:9: the python block starting at line 8"):
         run_page(page, tmp_path)
+
+
+def test_standalone_blocks_share_no_name_file_or_runtime(tmp_path, monkeypatch):
+    """A block leaning on an earlier block's name, file or Taichi runtime passes on a guide page and
+    fails where blocks must run on their own (the README)."""
+    monkeypatch.chdir(tmp_path)
+    leaning = {
+        "name": ("x = 1", "y = x + 1", "NameError: name 'x' is not defined"),
+        "file": ("open('a.txt', 'w').write('1')", "open('a.txt').read()", "FileNotFoundError"),
+        "runtime": (
+            "import taichi_anim as ta\nta.init('cpu', precision='f64')",
+            "import taichi_anim as ta\nassert ta.is_initialized()",
+            "AssertionError",
+        ),
+    }
+    for what, (first, second, error) in leaning.items():
+        page, folder = tmp_path / f"{what}.md", tmp_path / what
+        folder.mkdir()
+        page.write_text(f"# t\n\n```python\n{first}\n```\n\n```python\n{second}\n```\n")
+        run_page(page, folder)  # one namespace, folder and runtime: passes
+        with pytest.raises(pytest.fail.Exception, match=error):
+            run_page(page, folder, standalone=True)
 
 
 @pytest.fixture(scope="module")
