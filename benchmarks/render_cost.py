@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 from harness import Page, clock, fmt_s, init, parse_args
 
+from taichi_anim.content import Lines, Mesh, Points
 from taichi_anim.render import render_items, write_png
 from taichi_anim.scenes import make_scene
-from taichi_anim.scenes.content import Lines, Mesh, Points
 
 RESOLUTION = (960, 720)
 REPEATS = 5

@@ -1,149 +1,83 @@
 """Builder: collects what a scene has in plain Python and NumPy; `finalize()` allocates every Taichi
-field once, exactly sized (Warp's `ModelBuilder.finalize()`). The engine is Y-up, SI units."""
+field once, exactly sized (Warp's `ModelBuilder.finalize()`). The engine is Y-up, SI units.
+
+Each body kind's builder methods (`add_particles`, `add_particle_emitter`, `add_cloth_grid`, ...) come
+from its part in bodies/; this file holds what acts on bodies: force terms, colliders, attachments and
+the contact solvers' options."""
 
 from __future__ import annotations
 
 import inspect
-import math
 
 import numpy as np
 
-from . import geometry, validate
-from .cloth import Cloth, ClothMaterial, FabricMaterial
+from . import validate
+from .bodies import BUILDER_PARTS, KINDS
+from .bodies.particles.builder import (
+    CLOTH_GRID_BYTES_PER_VERTEX,
+    PARTICLE_BYTES,
+    TRAIL_SAMPLE_BYTES,
+)
+from .cloth import Cloth
 from .collision import ColliderPlane, ColliderSolidBox, ColliderSphere, RigidMotion
+from .collision.colliders import check_collider
+from .collision.mesh_collider import make_collider_mesh
 from .collision.motion import Attachment
+from .collision.self_contact import self_contact_options
 from .errors import ParameterError
 from .model import Model
-from .particles import Emitter, EmitterShape
-from .particles.emitters import EmitterSettings
 from .rng import SEED_LIMIT
 from .runtime import ensure_initialized, np_float
-from .terms import AnchorSpring, Drag, Gravity
+from .terms import AnchorSpring, Drag, ElementTerm, Gravity, PointTerm
+from .terms.aero import AeroTriangles
+from .terms.base import check_protocol
+from .terms.bending import BendingDihedral, mesh_hinges
+from .terms.membrane import MembraneStVK
 
-# Peak memory [bytes] that finalize() and model.state() add per element (NumPy staging and the Taichi
-# fields, f32; f64 needs more), measured as the growth of the peak resident size for 10^6 particles,
-# 10^6 emitter slots, 6 x 10^6 springs and cloth grids of 500^2 and 1000^2 vertices. Capacities are
-# checked against them before anything is allocated: honest figures, so that real scenes (10^7
-# particles need ~1.4 GB) still pass while absurd ones fail at once instead of after minutes of swapping.
-PARTICLE_BYTES = 140
-SPRING_BYTES = 250
-TRAIL_SAMPLE_BYTES = 48  # float64 staging, its float32 copy and the field: 4 + 4 + 4 floats per sample
-# A grid cloth, all told (NumPy grid, springs and checks, then finalize()): 2.1-2.3 kB measured.
-CLOTH_GRID_BYTES_PER_VERTEX = 2000
+__all__ = ["CLOTH_GRID_BYTES_PER_VERTEX", "PARTICLE_BYTES", "TRAIL_SAMPLE_BYTES", "Builder"]
+
+SPRING_BYTES = 250  # peak bytes per spring, measured as PARTICLE_BYTES (bodies/particles/builder.py)
 
 
-class Builder:
-    """Scene description: particles, emitters, force terms, colliders, trails."""
+class Builder(*BUILDER_PARTS):
+    """Scene description: each body kind's bodies (particles, emitters, cloths, trails), force terms,
+    colliders, attachments, contacts."""
 
     def __init__(self) -> None:
-        self._x: list[np.ndarray] = []
-        self._v: list[np.ndarray] = []
-        self._m: list[np.ndarray] = []
-        self._r: list[np.ndarray] = []
+        for kind in KINDS:
+            kind.init_builder(self)
         self._contacts: dict | None = None
         self._self_contact: dict | None = None
         self._containers: list[tuple[np.ndarray, np.ndarray]] = []
-        self._emitters: list[EmitterSettings] = []
         self._gravity: tuple | None = None
         self._drag: list[tuple[float, tuple]] = []
         self._anchor_springs: list[tuple] = []
         self._anchored: set[int] = set()
+        self._user_point_terms: list = []  # add_force(PointTerm), after the built-in pointwise terms
         self._colliders: list = []
         self._attachments: list[Attachment] = []
-        self._trail_length = 0
-        self._springs: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
-        self._triangles: list[np.ndarray] = []
         # Element terms other than springs: factories called by finalize() with (particle count, positions).
         self._element_terms: list = []
-        self.cloths: list[Cloth] = []
 
-    @property
-    def particle_count(self) -> int:
-        """Particles added so far (emitter slots not included)."""
-        return sum(len(a) for a in self._x)
+    def add_force(self, term) -> None:
+        """Add a user's force term (a PointTerm or ElementTerm subclass written in Taichi): see the
+        guide's custom-forces page. An ElementTerm is made with the scene's final particle count
+        (`builder.particle_count` after every add_particles/cloth; emitters' slots count too)."""
+        if not isinstance(term, PointTerm | ElementTerm):
+            raise ParameterError(f"term must be a PointTerm or ElementTerm instance, got {term!r}")
+        check_protocol(term)  # a missing method or declaration fails here, naming it
+        if term.coupled:
+            self._element_terms.append(lambda n, x: _sized(term, n))
+        else:
+            self._user_point_terms.append(term)
 
-    def add_particles(self, x, v=None, mass=1.0, *, radius=0.0) -> range:
-        """Add particles: x (N,3) [m], v (N,3) [m/s] (default 0), mass [kg] scalar or (N,); mass 0 pins
-        a particle; radius [m] scalar or (N,) (0: a point; > 0: a hard sphere for sphere contacts and
-        colliders). Returns their indices."""
-        x = validate.finite_array("x", np.atleast_2d(x), (3,))
-        validate.capacity("x", self.particle_count + len(x), bytes_each=0, unit="particles in the scene")
-        v = np.zeros_like(x) if v is None else validate.finite_array("v", np.atleast_2d(v), (3,))
-        if v.shape != x.shape:
-            raise ParameterError(f"v must have the shape of x {x.shape}, got {v.shape}")
-        m = validate.per_element("mass", mass, len(x))
-        if not np.all(np.isfinite(m)) or np.any(m < 0):
-            raise ParameterError(f"mass must be finite and >= 0 (0 pins a particle), got {mass!r}")
-        r = validate.per_element("radius", radius, len(x))
-        if not np.all(np.isfinite(r)) or np.any(r < 0):
-            raise ParameterError(f"radius must be finite and >= 0, got {radius!r}")
-        start = self.particle_count
-        self._x.append(x)
-        self._v.append(v)
-        self._m.append(m)
-        self._r.append(r)
-        return range(start, start + len(x))
-
-    def add_particle(self, x, v=(0.0, 0.0, 0.0), mass: float = 1.0, *, radius: float = 0.0) -> int:
-        """Add one particle and return its index."""
-        return self.add_particles([x], [v], mass, radius=radius)[0]
-
-    def add_cloth_grid(
-        self,
-        *,
-        origin=(0.0, 0.0, 0.0),
-        size=(1.0, 1.0),
-        resolution=(32, 32),
-        plane: str = "xz",
-        material: ClothMaterial | FabricMaterial | None = None,
-        thickness: float = 0.005,
-        pinned=(),
-        velocity=(0.0, 0.0, 0.0),
-    ) -> Cloth:
-        """A rectangular cloth: resolution (nx, ny) vertices over size (w, h) [m] from origin [m], in the
-        "xz" plane (horizontal; vertex (i, j) at origin + (i w/(nx-1), 0, j h/(ny-1))) or "xy" (vertical);
-        vertex (i, j) is particle start + j nx + i. A ClothMaterial gives springs in Provot's grid layout,
-        a FabricMaterial a StVK membrane and dihedral bending instead; mass from the
-        material's areal density; thickness [m]: collision radius of each vertex; pinned: grid vertex
-        indices j nx + i that keep their velocity (kinematic); velocity [m/s] of every vertex at t = 0."""
-        res = tuple(validate.count("resolution", r, 2) for r in np.atleast_1d(resolution))
-        if len(res) != 2:
-            raise ParameterError(f"resolution must be (nx, ny), got {resolution!r}")
-        sz = np.asarray(size, dtype=np.float64).reshape(-1)
-        if sz.shape != (2,) or not np.all(np.isfinite(sz)) or np.any(sz <= 0):
-            raise ParameterError(f"size must be two finite lengths > 0 [m], got {size!r}")
-        validate.choice("plane", plane, ["xz", "xy"])
-        _check_grid_size(res)  # before NumPy builds anything: 10^4 x 10^4 would take minutes to fail
-        vertices, triangles = geometry.cloth_grid(
-            origin=validate.vec3("origin", origin), size=tuple(sz), resolution=res, plane=plane
-        )
-        springs = geometry.grid_springs(res)
-        return self._add_cloth(vertices, triangles, springs, material, thickness, pinned, velocity)
-
-    def add_cloth_mesh(
-        self,
-        mesh,
-        *,
-        material: ClothMaterial | FabricMaterial | None = None,
-        thickness: float = 0.005,
-        pinned=(),
-        velocity=(0.0, 0.0, 0.0),
-    ) -> Cloth:
-        """A cloth from a triangle mesh: an Open3D TriangleMesh (legacy or tensor), a file Open3D reads
-        (PLY keeps vertex order, so pin indices stay valid), or (vertices (V,3) [m], triangles (F,3)).
-        Stretch springs on the edges; across each interior edge a shear spring where the edge is the
-        diagonal of a split quad, else a bend spring. Bad meshes (empty, NaN, duplicate vertices,
-        zero-area triangles, non-manifold edges, unused vertices) raise ParameterError."""
-        vertices, triangles = geometry.load_mesh(mesh)
-        used = np.zeros(len(vertices), dtype=bool)
-        used[triangles.reshape(-1)] = True
-        if not used.all():
-            raise ParameterError(
-                f"mesh: vertex {int(np.argmin(used))} is in no triangle ({int((~used).sum())} unused "
-                f"vertices); a cloth vertex needs a triangle for its mass"
-            )
-        springs = geometry.mesh_springs(vertices, triangles)
-        return self._add_cloth(vertices, triangles, springs, material, thickness, pinned, velocity)
+    def add_collider(self, collider) -> None:
+        """Add a user's collider (a `collision.colliders.Collider` subclass, e.g. of `ColliderAnalytic`
+        with its `sdf`, `normal`, `velocity` and `sweep` as Taichi functions): checked now against the
+        collider protocol (a missing method or attribute is a ParameterError naming it), then used like the
+        built-in ones by the step, the watchdog and the USD export."""
+        check_collider(collider)
+        self._colliders.append(collider)
 
     def add_springs(self, pairs, *, stiffness, damping=0.0, rest_length=None) -> None:
         """Damped springs between particles (terms/springs.py): pairs (S,2) particle indices;
@@ -167,52 +101,11 @@ class Builder:
         k, c, rest = arrays
         self._springs.append((p, rest, k, c, np.zeros(s, np.int8)))
 
-    def _add_cloth(self, vertices, triangles, springs, material, thickness, pinned, velocity) -> Cloth:
-        material = ClothMaterial() if material is None else material
-        if not isinstance(material, ClothMaterial | FabricMaterial):
-            raise ParameterError(f"material must be a ClothMaterial or a FabricMaterial, got {material!r}")
-        thickness = validate.positive("thickness", thickness)
-        nv = len(vertices)
-        pin = np.unique(validate.index_list("pinned", pinned, nv, "cloth vertices"))
-        mass = geometry.lumped_masses(vertices, triangles, material.density)
-        mass[pin] = 0.0  # inverse mass 0: the vertex is kinematic
-        v = np.tile(np.asarray(validate.vec3("velocity", velocity)), (nv, 1))
-        idx = self.add_particles(vertices, v, mass, radius=thickness)
-        start = idx.start
-        pairs = springs.pairs
-        rest = np.linalg.norm(vertices[pairs[:, 0]] - vertices[pairs[:, 1]], axis=1)
-        tri = triangles.astype(np.int64) + start
-        self._triangles.append(tri)
-        cloth = Cloth(particles=idx, triangles=tri, pinned=pin + start)
-        self.cloths.append(cloth)
-        if isinstance(material, FabricMaterial):
-            self.add_force_membrane(cloth, **material.membrane_options())
-            if material.bending_stiffness > 0.0:
-                self.add_force_bending(
-                    cloth, stiffness=material.bending_stiffness, damping=material.bending_damping
-                )
-            return cloth
-        pairs = springs.pairs
-        rest = np.linalg.norm(vertices[pairs[:, 0]] - vertices[pairs[:, 1]], axis=1)
-        k, c = material.family_arrays(springs.family)
-        keep = k > 0.0  # a family of stiffness 0 adds nothing: leave its springs out
-        self._springs.append((pairs[keep] + start, rest[keep], k[keep], c[keep], springs.family[keep]))
-        return cloth
-
-    def _cloth(self, cloth) -> Cloth:
-        if not isinstance(cloth, Cloth) or not any(c is cloth for c in self.cloths):
-            raise ParameterError(
-                f"cloth must be a Cloth returned by this builder's add_cloth_*, got {cloth!r}"
-            )
-        return cloth
-
     def add_force_membrane(self, cloth: Cloth, **options) -> None:
         """A StVK triangle membrane on `cloth` (terms/membrane.py), rest shape as added: youngs_modulus
         [N/m] (areal: Young's modulus times thickness), poisson_ratio in [0, 0.5), damping [s] (Rayleigh,
         stiffness-proportional); optional warp/weft anisotropy (youngs_warp, youngs_weft [N/m],
         shear_modulus [N/m], warp_direction)."""
-        from .terms.membrane import MembraneStVK
-
         tri = self._cloth(cloth).triangles
         validate.options("membrane", options, inspect.signature(MembraneStVK).parameters)
         validate.positive("youngs_modulus", options.get("youngs_modulus", 1.0))
@@ -225,8 +118,6 @@ class Builder:
     def add_force_bending(self, cloth: Cloth, *, stiffness: float, damping: float = 0.0) -> None:
         """Dihedral-angle bending on every interior edge of `cloth` (terms/bending.py): stiffness [N m]
         (a plate's E t^3 / (12 (1 - nu^2))), damping [s] (Rayleigh); rest angles from the rest shape."""
-        from .terms.bending import BendingDihedral, mesh_hinges
-
         validate.non_negative("stiffness", stiffness)
         validate.non_negative("damping", damping)
         hinges = mesh_hinges(self._cloth(cloth).triangles)
@@ -248,8 +139,6 @@ class Builder:
         """Per-triangle aerodynamic drag and lift on `cloth` against the air velocity `wind` [m/s]
         (terms/aero.py): air density [kg/m^3], dimensionless coefficients; options: gust_amplitude,
         gust_frequency [Hz]."""
-        from .terms.aero import AeroTriangles
-
         tri = self._cloth(cloth).triangles
         kw = dict(
             wind=wind,
@@ -266,65 +155,6 @@ class Builder:
         validate.non_negative("drag_coefficient", drag_coefficient)
         validate.non_negative("lift_coefficient", lift_coefficient)
         self._element_terms.append(lambda n, x: AeroTriangles(n, tri, **kw))
-
-    def add_particle_emitter(
-        self,
-        *,
-        capacity: int,
-        rate: float,
-        shape: EmitterShape | str = EmitterShape.POINT,
-        center=(0.0, 0.0, 0.0),
-        radius: float = 0.0,
-        half_extents=(0.0, 0.0, 0.0),
-        direction=(0.0, 1.0, 0.0),
-        speed: float = 1.0,
-        speed_jitter: float = 0.0,
-        spread: float = 0.0,
-        lifetime: float = 1.0,
-        lifetime_jitter: float = 0.0,
-        mass: float = 1.0,
-        particle_radius: float = 0.0,
-        color_start=(1.0, 0.9, 0.3),
-        color_end=(0.8, 0.1, 0.05),
-    ) -> int:
-        """Add an emitter with its own pool of `capacity` slots (Reeves 1983).
-
-        rate [particles/s]; shape point/disc/sphere/box; radius [m] (disc, sphere); half_extents [m] (box);
-        direction: mean velocity direction (disc normal); speed [m/s] with relative speed_jitter; spread:
-        cone half-angle [rad]; lifetime [s] with relative lifetime_jitter; mass [kg]; particle_radius [m]
-        (0: points, > 0: hard spheres); colours RGB in [0,1]
-        at birth and death. Returns the emitter index.
-        """
-        try:
-            shape = EmitterShape(shape) if isinstance(shape, str) else shape
-        except ValueError:
-            validate.choice("emitter shape", shape, [s.value for s in EmitterShape])
-        capacity = validate.count("capacity", capacity, 1)
-        validate.capacity("capacity", capacity, bytes_each=PARTICLE_BYTES, unit="emitter slots")
-        size = (validate.non_negative("radius", radius), 0.0, 0.0)
-        if shape == EmitterShape.BOX:
-            size = validate.vec3("half_extents", half_extents)
-            if min(size) < 0:
-                raise ParameterError(f"half_extents must be >= 0, got {half_extents!r}")
-        settings = EmitterSettings(
-            shape=shape,
-            center=validate.vec3("center", center),
-            size=size,
-            direction=validate.unit3("direction", direction),
-            rate=validate.non_negative("rate", rate),
-            speed=validate.non_negative("speed", speed),
-            speed_jitter=validate.in_range("speed_jitter", speed_jitter, 0.0, 1.0),
-            spread=validate.in_range("spread", spread, 0.0, math.pi),
-            lifetime=validate.positive("lifetime", lifetime),
-            lifetime_jitter=validate.in_range("lifetime_jitter", lifetime_jitter, 0.0, 1.0),
-            mass=validate.positive("mass", mass),
-            particle_radius=validate.non_negative("particle_radius", particle_radius),
-            capacity=capacity,
-            color_start=tuple(float(c) for c in validate.colors("color_start", [color_start], 1)[0]),
-            color_end=tuple(float(c) for c in validate.colors("color_end", [color_end], 1)[0]),
-        )
-        self._emitters.append(settings)
-        return len(self._emitters) - 1
 
     def add_force_gravity(self, g=(0.0, -9.81, 0.0)) -> None:
         """Uniform gravity g [m/s^2] (Y-up: the default pulls along -y)."""
@@ -451,8 +281,6 @@ class Builder:
         given in its frame), or vertex_frames = (times (K,) [s], positions (K, V, 3) [m]) for a deforming
         mesh (linear between frames, held outside them), or neither (static). Bad meshes (empty, non-finite,
         indices out of range, every face of zero area, an unreadable file) raise ParameterError."""
-        from .collision.mesh_collider import make_collider_mesh
-
         self._colliders.append(
             make_collider_mesh(
                 mesh,
@@ -566,8 +394,6 @@ class Builder:
         count and the first crossing pair when a State's first step starts with crossing triangles: the
         contact cannot untangle them, it would only keep them crossed) or "warn" (run anyway, with a
         warning and the count in `SelfContact.start_crossing_pairs`)."""
-        from .collision.self_contact import self_contact_options
-
         if thickness is None:
             if not self.cloths:
                 raise ParameterError("add_cloth_self_contact needs a cloth: add_cloth_grid/mesh first")
@@ -585,10 +411,6 @@ class Builder:
             start_crossings=start_crossings,
         )
 
-    def add_particle_trails(self, length: int) -> None:
-        """Keep the last `length` positions of every particle (exported as line sets)."""
-        self._trail_length = validate.count("length", length, 2)
-
     def finalize(self, *, seed: int = 0) -> Model:
         """Allocate the model's fields (initialises Taichi on the CPU if the application has not)."""
         seed = validate.count("seed", seed, 0, SEED_LIMIT - 1)
@@ -596,21 +418,11 @@ class Builder:
             raise ParameterError("the scene is empty: add particles or an emitter before finalize()")
         self._check_size()
         ensure_initialized()
-        x = [*self._x]
-        v = [*self._v]
-        m = [*self._m]
-        r = [*self._r]
-        start = self.particle_count
-        emitters = []
-        for k, es in enumerate(self._emitters):
-            emitters.append(Emitter(es, start, k))
-            x.append(np.tile(es.center, (es.capacity, 1)))
-            v.append(np.zeros((es.capacity, 3)))
-            m.append(np.full(es.capacity, es.mass))
-            r.append(np.full(es.capacity, es.particle_radius))
-            start += es.capacity
-        x_all = np.concatenate(x)
-        r_all = np.concatenate(r)
+        bodies, kind_settings = {}, {}
+        for kind in KINDS:
+            bodies[kind.name], kind_settings[kind.name] = kind.finalize(self)
+        particles = bodies["particles"]  # every term and collider acts on particles
+        x_all, v_all, m_all, r_all = (particles[k] for k in ("x", "v", "mass", "radius"))
         contacts = None
         if self._contacts is not None:
             if r_all.max() <= 0.0:
@@ -630,6 +442,7 @@ class Builder:
         terms += [Drag(k, w) for k, w in self._drag]
         if self._anchor_springs:
             terms.append(AnchorSpring(len(x_all), self._anchor_springs))
+        terms += self._user_point_terms
         springs = None
         if self._springs:
             cols = list(zip(*self._springs, strict=True))
@@ -644,12 +457,7 @@ class Builder:
         if self._self_contact is not None and triangles is None:
             raise ParameterError("add_cloth_self_contact needs a cloth: add_cloth_grid or add_cloth_mesh")
         settings = {
-            "particles": self.particle_count,
-            "cloths": [
-                {"vertices": len(c.particles), "triangles": len(c.triangles), "pinned": len(c.pinned)}
-                for c in self.cloths
-            ],
-            "emitters": [e.settings() for e in emitters],
+            **kind_settings["particles"],
             "forces": [t.settings() for t in terms],
             "colliders": [c.settings() for c in self._colliders],
             "attachments": [a.settings() for a in self._attachments],
@@ -657,7 +465,6 @@ class Builder:
             "seed": seed,
         }
         element_terms = [make(len(x_all), x_all) for make in self._element_terms]
-        v_all, m_all = np.concatenate(v), np.concatenate(m)
         # Every float the fields will hold must fit the precision they are allocated in (not become inf).
         validate.fits_float(
             dict(x=x_all, v=v_all, mass=m_all, radius=r_all, springs=springs or {}, forces=terms,
@@ -667,14 +474,9 @@ class Builder:
         )  # fmt: skip
         validate.mass_fits("mass", m_all, np_float())
         return Model(
-            x=x_all,
-            v=v_all,
-            mass=m_all,
-            radius=r_all,
+            bodies=bodies,
             terms=terms,
             colliders=self._colliders,
-            emitters=emitters,
-            trail_length=self._trail_length,
             seed=seed,
             settings=settings,
             contacts=contacts,
@@ -707,18 +509,20 @@ class Builder:
         return lo, hi
 
 
-def _check_grid_size(res: tuple[int, int]) -> None:
-    """Refuse a cloth grid of `res` vertices whose springs or triangles overflow 32-bit indices or whose
-    construction would not fit in the available memory."""
-    nx, ny = res
-    springs = (nx - 1) * ny + nx * (ny - 1) + 2 * (nx - 1) * (ny - 1) + (nx - 2) * ny + nx * (ny - 2)
-    name = f"resolution {res}"
-    validate.capacity(name, 2 * springs, bytes_each=0, unit="spring ends")
-    validate.capacity(name, 6 * (nx - 1) * (ny - 1), bytes_each=0, unit="triangle corners")
-    validate.capacity(name, nx * ny, bytes_each=CLOTH_GRID_BYTES_PER_VERTEX, unit="cloth vertices")
-
-
 def _motion(motion) -> RigidMotion | None:
     if motion is not None and not isinstance(motion, RigidMotion):
         raise ParameterError(f"motion must be a RigidMotion or None, got {motion!r}")
     return motion
+
+
+def _sized(term, n: int):
+    """A user's element term, checked against the scene's final particle count n (its adjacency was
+    sized when it was made)."""
+    made = getattr(term, "particle_count", n)
+    if made != n:
+        raise ParameterError(
+            f"add_force: {type(term).__name__} was made for {made} particles, the scene has {n} "
+            f"(make it after every add_particles / add_cloth_* / add_particle_emitter, with "
+            f"builder.particle_count plus the emitters' capacities)"
+        )
+    return term

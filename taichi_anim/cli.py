@@ -15,7 +15,9 @@ import argparse
 import sys
 import warnings
 
-from . import rng, runtime, validate
+# scenes, runner and viewer as modules, not names: a call looks its function up when it runs, so a test
+# can replace it (as it could when these were imported inside the functions).
+from . import rng, runtime, scenes, validate, viewer
 from .errors import (
     ConvergenceError,
     DivergenceError,
@@ -25,6 +27,8 @@ from .errors import (
     StabilityError,
 )
 from .integrators import INTEGRATORS
+from .io.manifest import check_run_folder
+from .scenes import runner
 
 AUTO_SCENES = ("cloth", "drape", "flag")  # demos that can choose their method (integrator="auto")
 
@@ -35,19 +39,17 @@ EXIT_INTERRUPTED = 130  # SIGINT; any stop signal: 128 + its number (RunInterrup
 
 
 def _parser() -> argparse.ArgumentParser:
-    from .scenes import DEFAULT_SCENE
-
     p = argparse.ArgumentParser(prog="taichi-anim", description="taichi_anim: particle and cloth animation")
     sub = p.add_subparsers(dest="command")
     d = sub.add_parser(
         "demo",
-        help=f"run a demo scene (default: {DEFAULT_SCENE})",
+        help=f"run a demo scene (default: {scenes.DEFAULT_SCENE})",
         epilog="exit codes: 0 complete, 2 bad parameter or unavailable backend, 3 output not written "
         "(or the folder is in use by another run), 4 simulation stopped (diverged or failed under a raise "
         "policy), 128+N stopped by signal N after saving the frames so far (130 SIGINT, 143 SIGTERM, "
         "129 SIGHUP)",
     )
-    d.add_argument("name", nargs="?", default=DEFAULT_SCENE, help="demo to run (see --list)")
+    d.add_argument("name", nargs="?", default=scenes.DEFAULT_SCENE, help="demo to run (see --list)")
     d.add_argument("--list", action="store_true", help="list the demos and exit")
     d.add_argument("--frames", type=int, default=None, help="frames to simulate (default: the scene's own)")
     d.add_argument(
@@ -115,12 +117,8 @@ def _int(name: str, text: str) -> int:
 
 
 def _demo(args) -> int:
-    from .io.manifest import check_run_folder
-    from .scenes import describe, make_scene
-    from .scenes.runner import run_scene, summary_line, video_target
-
     if args.list:
-        for name, text in describe().items():
+        for name, text in scenes.describe().items():
             print(f"{name:12s} {text}")
         return 0
     if args.frames is not None and args.frames < 1:
@@ -128,12 +126,10 @@ def _demo(args) -> int:
     out = args.out or f"out/{args.name}"
     # Before the backend starts and the scene compiles, and before anything is removed; creates nothing.
     check_run_folder(out)
-    video_target(args.video, out, args.name, option="--video")  # "" stays "": run_scene names it
-    viewer = None
+    runner.video_target(args.video, out, args.name, option="--video")  # "" stays "": run_scene names it
+    window = None
     if args.view:
-        from .viewer import ViewerUnavailable, vulkan_problem
-
-        problem = vulkan_problem()
+        problem = viewer.vulkan_problem()
         if problem:
             print(f"taichi-anim: --view is not possible here: {problem}", file=sys.stderr)
             return 2
@@ -171,30 +167,28 @@ def _demo(args) -> int:
             )
             return 2
         options["substeps"] = args.substeps if args.substeps == "auto" else _int("--substeps", args.substeps)
-    scene = make_scene(args.name, **options)
+    scene = scenes.make_scene(args.name, **options)
     if args.view:
-        from .viewer import Viewer
-
         try:
-            viewer = Viewer(f"taichi_anim: {args.name}")
-        except ViewerUnavailable as e:
+            window = viewer.Viewer(f"taichi_anim: {args.name}")
+        except viewer.ViewerUnavailable as e:
             print(f"taichi-anim: --view is not possible here: {e}", file=sys.stderr)
             return 2
-    summary = run_scene(
+    summary = runner.run_scene(
         scene,
         frames=args.frames or scene.frames,
         out_dir=out,
         export=not args.no_export,
         export_format=args.format,
         progress=not args.quiet,
-        viewer=viewer,
+        viewer=window,
         extra_settings={"seed": args.seed, "arch_requested": args.arch, "arch_choice": runtime.arch_choice()},
         video=args.video,
         color_by=args.color_by,
     )
-    if viewer is not None:
-        viewer.close()
-    print(summary_line(summary))
+    if window is not None:
+        window.close()
+    print(runner.summary_line(summary))
     return 0
 
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from . import validate
 from .errors import ParameterError
+from .io.export import read_triangle_mesh
 
 # Relative to the bounding-box diagonal, so that the checks do not depend on the mesh's units.
 AREA_TOLERANCE = 1e-12  # a triangle of area <= AREA_TOLERANCE * diagonal^2 is degenerate
@@ -193,8 +194,6 @@ def load_mesh(mesh, *, name="mesh", check=None) -> tuple[np.ndarray, np.ndarray]
         return check(mesh[0], mesh[1], name=name)
     if isinstance(mesh, (str, os.PathLike)):
         # The reader in io.export guards against Open3D's silent failures (truncated PLY, OBJ crashes).
-        from .io.export import read_triangle_mesh
-
         try:
             data = read_triangle_mesh(mesh)
         except FileNotFoundError:

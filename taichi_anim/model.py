@@ -1,4 +1,5 @@
-"""Model: the static description of a scene (masses, force terms, colliders, emitters) and its counts.
+"""Model: the static description of a scene (every body kind's static arrays — bodies/: the particles'
+masses, radii, emitters —, force terms, colliders) and its counts.
 Absent parts are empty tuples / None with count 0, and kernels branch on them at compile time, so a scene
 compiles and runs only what it has. Nothing here changes during a step: dynamic data is in State, and
 every scratch field (element caches, stage states, Krylov vectors) belongs to the solver that writes it."""
@@ -8,27 +9,25 @@ from types import MappingProxyType
 import numpy as np
 import taichi as ti
 
+from .bodies import KINDS, MODEL_PARTS
 from .collision.motion import attachment_codes
 from .runtime import data_oriented, np_float, serial_loops
-from .state import ALIVE_FOREVER, State
+from .state import State
 from .terms import Springs
 
 
 @data_oriented
-class Model:
-    """Built by `Builder.finalize()`. particle_count includes every emitter's slots."""
+class Model(*MODEL_PARTS):
+    """Built by `Builder.finalize()`. `kinds`: the body kinds it holds (bodies/), each with its arrays
+    and accessors (the particles': particle_count, which includes every emitter's slots, masses,
+    radii)."""
 
     def __init__(
         self,
         *,
-        x,
-        v,
-        mass,
-        radius,
+        bodies,
         terms,
         colliders,
-        emitters,
-        trail_length,
         seed,
         settings,
         contacts=None,
@@ -38,49 +37,22 @@ class Model:
         self_contact=None,
         attachments=(),
     ):
-        n = len(x)
-        self.particle_count = n
+        # Each kind's arrays, from the builder's parts (bodies: {kind name: init_model's arguments}).
+        self.kinds = KINDS
+        for kind in KINDS:
+            kind.init_model(self, **bodies[kind.name])
+        n = self.particle_count
+        self.seed = seed
         self.settings = dict(settings)  # a copy: the builder's record is not written to
         self.colliders = list(colliders)
-        self.emitters = list(emitters)
-        self.emitter_count = len(self.emitters)
         self.collider_count = len(self.colliders)
         for c in self.colliders:  # moving and mesh colliders write their keyframes / geometry into fields
-            c.allocate(reach=float(np.max(radius)))
+            c.allocate(reach=self.max_radius)
         self._prepared_colliders = tuple(c for c in self.colliders if c.needs_prepare)
         # Attachments: pinned particles put on animated targets at the end of each step.
         self.attachments = tuple(attachments)
         self.attachment_count = len(self.attachments)
         self.particle_attachment = attachment_codes(n, self.attachments) if self.attachments else None
-        self.trail_length = trail_length
-        self.seed = seed
-        self._x0 = np.asarray(x, dtype=np.float64)
-        self._v0 = np.asarray(v, dtype=np.float64)
-        masses = np.asarray(mass, dtype=np.float64)
-        # One mass for all: a compile-time constant instead of a field read per particle and step.
-        self.uniform_mass = float(masses[0]) if np.all(masses == masses[0]) else None
-        self.particle_mass = None
-        self.particle_inv_mass = None
-        if self.uniform_mass is None:
-            self.particle_mass = ti.field(float, n)
-            self.particle_inv_mass = ti.field(float, n)
-            self.particle_mass.from_numpy(masses.astype(np_float()))
-            inv = np.divide(1.0, masses, out=np.zeros_like(masses), where=masses > 0)
-            self.particle_inv_mass.from_numpy(inv.astype(np_float()))
-        self.uniform_inv_mass = 1.0 / self.uniform_mass if self.uniform_mass else 0.0
-        self.per_particle_mass = self.uniform_mass is None  # kernels branch on this at compile time
-        radii = np.asarray(radius, dtype=np.float64)
-        # Radii [m]: all zero for point particles (a compile-time 0 then), one value, or one per particle.
-        self.max_radius = float(radii.max())
-        self.min_radius = float(radii.min())
-        self.min_sphere_radius = float(radii[radii > 0].min()) if self.max_radius > 0 else 0.0
-        self.uniform_radius = self.max_radius if self.max_radius == self.min_radius else None
-        self.particle_radius = None
-        self.per_particle_radius = self.uniform_radius is None  # compile-time branch in kernels
-        if self.uniform_radius is None:
-            self.particle_radius = ti.field(float, n)
-            self.particle_radius.from_numpy(radii.astype(np_float()))
-        self._static_count = n - sum(e.capacity for e in self.emitters)
         # Sphere contacts: the options the scene asked for (validated by the Builder), or None. The contact
         # solver (collision/spheres.py) is built from them by the Stepper, which owns its fields.
         self.sphere_contacts = None if contacts is None else MappingProxyType(dict(contacts))
@@ -117,21 +89,11 @@ class Model:
         self.serial = serial_loops(n + entries // 8)
 
     def state(self) -> State:
-        """A fresh State at t = 0: the builder's particles in place, every emitter slot dead."""
+        """A fresh State at t = 0: every kind's start (the builder's particles in place, every emitter
+        slot dead)."""
         s = State(self)
-        f = np_float()
-        s.particle_x.from_numpy(self._x0.astype(f))
-        s.particle_v.from_numpy(self._v0.astype(f))
-        if s.has_lifetimes:
-            death = np.full(self.particle_count, -1.0)
-            death[: self._static_count] = ALIVE_FOREVER
-            s.particle_death.from_numpy(death.astype(f))
-            dead = np.zeros(s.particle_free.shape[0] * 32, dtype=np.uint8)
-            dead[self._static_count : self.particle_count] = 1
-            s.particle_free.from_numpy(np.packbits(dead, bitorder="little").view(np.uint32))
-            s.particle_birth.from_numpy(np.zeros(self.particle_count, f))
-        if s.trail_length:
-            s.trail.from_numpy(np.repeat(self._x0[:, None, :], s.trail_length, axis=1).astype(f))
+        for kind in KINDS:
+            kind.start_state(s, self)
         return s
 
     def prepare_colliders(self, t: float, h: float) -> None:
@@ -139,58 +101,6 @@ class Model:
         its hierarchy refitted); nothing for the others."""
         for c in self._prepared_colliders:
             c.prepare(t, h)
-
-    def emit(self, state: State, dt: float) -> None:
-        """Run every emitter for a step of dt [s] on `state` (births into free slots)."""
-        for e in self.emitters:
-            e.emit(state, state.time, dt, self.seed, state.step_count)
-
-    @ti.func
-    def mass(self, i):
-        """Mass [kg] of particle i (0 for pinned particles); Taichi scope."""
-        m = ti.cast(self.uniform_mass or 0.0, float)
-        if ti.static(self.per_particle_mass):
-            m = self.particle_mass[i]
-        return m
-
-    @ti.func
-    def inv_mass(self, i):
-        """Inverse mass [1/kg] of particle i (0 for pinned particles); Taichi scope."""
-        w = ti.cast(self.uniform_inv_mass, float)
-        if ti.static(self.per_particle_mass):
-            w = self.particle_inv_mass[i]
-        return w
-
-    @ti.func
-    def radius(self, i):
-        """Radius [m] of particle i (0 for points); Taichi scope."""
-        r = ti.cast(self.uniform_radius or 0.0, float)
-        if ti.static(self.per_particle_radius):
-            r = self.particle_radius[i]
-        return r
-
-    @ti.func
-    def alive(self, state: ti.template(), i, t):
-        """Whether particle i of `state` is alive at time t [s]; Taichi scope."""
-        ok = True
-        if ti.static(state.has_lifetimes):
-            ok = state.particle_death[i] > t
-        return ok
-
-    @ti.func
-    def release(self, state: ti.template(), i):
-        """Mark dead slot i free for emitters. Final kernels call it for particles that die within the
-        step and again for any found dead at its start (covers f32 rounding of the step's end time)."""
-        w = i >> 5
-        bit = ti.u32(1) << ti.cast(i & 31, ti.u32)
-        if (state.particle_free[w] & bit) == 0:  # plain read first: most dead slots are marked already
-            ti.atomic_or(state.particle_free[w], bit)
-
-    @ti.func
-    def release_if_dead(self, state: ti.template(), i, t):
-        """Free slot i for emitters if its particle is dead by time t (the end of the step)."""
-        if state.particle_death[i] <= t:
-            self.release(state, i)
 
     @ti.func
     def force(self, i, x, v, t):
@@ -259,24 +169,12 @@ class Model:
         m = self.particle_masses()
         out = {}
         if v is not None:
-            out["kinetic"] = float(0.5 * np.sum(m[:, None] * np.asarray(v, dtype=np.float64) ** 2))
+            out["kinetic"] = self.particle_kinetic_energy(v)
         for term in self.terms:
             if term.has_energy:
                 key = term.settings()["type"]
                 out[key] = out.get(key, 0.0) + term.energy(x, m)
         return out
-
-    def particle_masses(self) -> np.ndarray:
-        """(N,) masses [kg] (0 for pinned particles)."""
-        if self.particle_mass is None:
-            return np.full(self.particle_count, self.uniform_mass or 0.0)
-        return self.particle_mass.to_numpy().astype(np.float64)
-
-    def pinned_indices(self) -> np.ndarray:
-        """(P,) int64 indices of the pinned (kinematic) particles: those added with mass 0, and a cloth's
-        `pinned=` vertices. They keep their velocity and ignore forces and collisions; attachments move
-        them along targets, State.set_positions places them."""
-        return np.flatnonzero(self.particle_masses() == 0.0)
 
     def spring_table(self) -> dict:
         """The model's springs as NumPy arrays, in the model's (sorted) spring order: pairs (S,2) int64
@@ -300,12 +198,6 @@ class Model:
             "damping": np.array(s.damping),
             "family": s.family.copy(),
         }
-
-    def particle_radii(self, idx: np.ndarray) -> np.ndarray:
-        """(N,) radii [m] of particles idx (0 for points)."""
-        if self.particle_radius is None:
-            return np.full(len(idx), self.max_radius)
-        return self.particle_radius.to_numpy()[idx]
 
 
 @data_oriented

@@ -15,8 +15,9 @@ those of the symmetric Ks = M^-1/2 K M^-1/2. Two estimates of its largest eigenv
     1e-3 of its value; omega^2 = theta + r (an eigenvalue lies within r of theta; Lanczos reaches the
     top of the spectrum first, so this is omega_max^2 to about r in practice, not a proven bound).
 The damping ratio of that mode is zeta = u^T Cs u / (2 omega), u the unit Ritz vector. Springs and
-pointwise terms give their blocks in NumPy; for the other element terms, whose exact element Hessians
-take long to compile, Lanczos multiplies by central differences of the total force instead (no bound).
+pointwise terms give their blocks in NumPy; for the other element terms (fast_blocks False), whose exact
+element Hessians take long to compile, Lanczos multiplies by central differences of the total force
+instead (no bound).
 
 Stability region. Each mode is the test system y' = A y, A = [[0, 1], [-w^2, -c]], its eigenvalues
 lambda = -c/2 +- sqrt(c^2/4 - w^2). A Runge-Kutta method multiplies them by its stability function
@@ -31,6 +32,12 @@ no damping h <= ln(1 + GROWTH) / w^2 for Euler, tiny on stiff cloth; with dampin
 outweighs the growth. The modes below omega_max are checked with the damping of stiffness-proportional
 (Rayleigh) damping through the top mode, c(w) = 2 zeta omega (w / omega)^2. Implicit Euler has no limit;
 the adaptive methods (rk45, adaptive) choose their own steps and are exempt.
+
+Each integrator declares its region (`stability_region`, a StabilityRegion: unconditional, adaptive, a
+Runge-Kutta tableau, symplectic Euler, or any method's one-step matrix on the test system); the guard
+asks for it, never for the method's name, and an integrator without one is refused when it is bound.
+Each force term gives its own linearisation (terms/base.py: `stiffness_part` of an element term,
+`point_blocks` of a pointwise one, else a kernel evaluates its `jacobian`).
 """
 
 import math
@@ -43,6 +50,7 @@ import taichi as ti
 from . import validate
 from .errors import ParameterError
 from .runtime import data_oriented, np_float
+from .terms.stiffness import BlockPart
 
 GROWTH = 0.01  # energy growth per second of simulated time that a step may allow (1%)
 GUARD_SAFETY = 0.95  # the guard reports steps above this fraction of the limit
@@ -70,114 +78,39 @@ class Frequency:
 
 
 def _element_blocks(model, x, v, t):
-    """The model's K and C as a list of parts (_SpringPart, _BlockPart)."""
+    """The model's K and C as a list of parts (SpringPart, BlockPart, or a term's own part with `apply`
+    and `gershgorin`): each element term's `stiffness_part`, and the pointwise terms' blocks."""
     parts = []
     n = model.particle_count
     for term in model.element_terms:
-        if hasattr(term, "element_arrays"):
-            # S(h) = h C + h^2 K (terms/base.py): two step sizes separate K and C.
-            s1 = term.element_arrays(x, v, t, 1.0)[2]
-            s2 = term.element_arrays(x, v, t, 2.0)[2]
-            k = 0.5 * (s2 - 2.0 * s1)
-            parts.append(_BlockPart(term.vertices, k, s1 - k))
-        elif hasattr(term, "pairs") and hasattr(term, "stiffness"):
-            parts.append(_SpringPart(term, x))
-        else:
-            raise ParameterError(f"the stability estimate does not know element term {type(term).__name__}")
+        make = getattr(term, "stiffness_part", None)
+        if make is None:
+            raise ParameterError(
+                f"the stability estimate needs stiffness_part(x, v, t) of element term {type(term).__name__}"
+            )
+        parts.append(make(x, v, t))
     point = _point_blocks(model, x, v, t)
     if point is not None:
-        parts.append(_BlockPart(np.arange(n)[:, None], *point))
+        parts.append(BlockPart(np.arange(n)[:, None], *point))
     return parts
 
 
-def _scatter(ids, values, n):
-    """(n, 3) sums of values (E, 3) by particle ids (E,) (bincount: no float atomics, fixed order)."""
-    return np.stack([np.bincount(ids, weights=values[:, c], minlength=n) for c in range(3)], axis=1)
-
-
-class _SpringPart:
-    """Springs (terms/springs.py) in their compact form: K_s = k [n n^T + t (I - n n^T)],
-    t = max(1 - L/l, 0), C_s = c n n^T, acting on p_i - p_j (+ at i, - at j)."""
-
-    def __init__(self, springs, x):
-        self.pairs = springs.pairs
-        d = x[self.pairs[:, 0]] - x[self.pairs[:, 1]]
-        length = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
-        self.n = d / length[:, None]
-        self.t = np.maximum(1.0 - springs.rest_length / length, 0.0)
-        self.k = springs.stiffness
-        self.c = springs.damping
-
-    def apply(self, p, damping: bool):
-        i, j = self.pairs[:, 0], self.pairs[:, 1]
-        d = p[i] - p[j]
-        nd = np.einsum("ec,ec->e", self.n, d)[:, None]
-        if damping:
-            f = self.c[:, None] * nd * self.n
-        else:
-            f = self.k[:, None] * ((1.0 - self.t)[:, None] * nd * self.n + self.t[:, None] * d)
-        return _scatter(i, f, len(p)) - _scatter(j, f, len(p))
-
-    def gershgorin(self, diag, off, s):
-        i, j = self.pairs[:, 0], self.pairs[:, 1]
-        nn = self.n[:, :, None] * self.n[:, None, :]
-        blk = self.k[:, None, None] * (nn + self.t[:, None, None] * (np.eye(3) - nn))
-        np.add.at(diag, i, blk)
-        np.add.at(diag, j, blk)
-        norm = self.k * np.maximum(1.0, self.t) * s[i] * s[j]  # eigenvalues of the block: k and k t
-        off += np.bincount(i, weights=norm, minlength=len(off))
-        off += np.bincount(j, weights=norm, minlength=len(off))
-
-
-class _BlockPart:
-    """Element blocks: ids (E, a) particle indices, K and C (E, 3a, 3a)."""
-
-    def __init__(self, ids, k, c):
-        self.ids, self.k, self.c = ids, k, c
-        self.dofs = (3 * ids[:, :, None] + np.arange(3)).reshape(len(ids), -1)
-
-    def apply(self, p, damping: bool):
-        y = np.einsum("eij,ej->ei", self.c if damping else self.k, p.reshape(-1)[self.dofs])
-        return np.bincount(self.dofs.ravel(), weights=y.ravel(), minlength=p.size).reshape(-1, 3)
-
-    def gershgorin(self, diag, off, s):
-        ids, k = self.ids, self.k
-        for a in range(ids.shape[1]):
-            ra = slice(3 * a, 3 * a + 3)
-            np.add.at(diag, ids[:, a], k[:, ra, ra])
-            for b in range(ids.shape[1]):
-                if b != a:
-                    # The Frobenius norm bounds the spectral norm (equal for rank-one blocks).
-                    blk = k[:, ra, 3 * b : 3 * b + 3]
-                    norm = np.sqrt(np.einsum("eij,eij->e", blk, blk)) * s[ids[:, a]] * s[ids[:, b]]
-                    off += np.bincount(ids[:, a], weights=norm, minlength=len(off))
-
-
 def _point_blocks(model, x, v, t):
-    """Per-particle 3x3 blocks (N, 3, 3) of the pointwise terms, K and C, or None without any. Drag and
-    anchor springs in NumPy (their Jacobians, terms/drag.py and terms/anchor_spring.py); a model with any
-    other pointwise term with a Jacobian evaluates them all in a kernel (model.force_jacobian)."""
+    """Per-particle 3x3 blocks (N, 3, 3) of the pointwise terms, K and C, or None without any: each
+    term's `point_blocks` in NumPy (drag, anchor springs), or, when one term cannot give them, all of
+    them by a kernel (model.force_jacobian)."""
     n = model.particle_count
     terms = [term for term in model.point_terms if term.has_jacobian]
     if not terms:
         return None
-    if any(term.settings()["type"] not in ("drag", "wind", "anchor_spring") for term in terms):
+    blocks = [term.point_blocks(x, v, t) for term in terms]
+    if any(b is None for b in blocks):
         return _PointJacobians(model).blocks(x, v, t)
     k = np.zeros((n, 3, 3))
     c = np.zeros((n, 3, 3))
-    for term in terms:
-        if term.settings()["type"] == "anchor_spring":
-            anchor = term.anchor.to_numpy().astype(np.float64)
-            stiff, rest, damp = term.params.to_numpy().astype(np.float64).T
-            d = x - anchor
-            length = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
-            nrm = d / length[:, None]
-            nn = nrm[:, :, None] * nrm[:, None, :]
-            tr = np.maximum(1.0 - rest / length, 0.0)
-            k += stiff[:, None, None] * (nn + tr[:, None, None] * (np.eye(3) - nn))
-            c += damp[:, None, None] * nn
-        else:
-            c += term.k * np.eye(3)
+    for kt, ct in blocks:
+        k += kt
+        c += ct
     return k, c
 
 
@@ -302,14 +235,15 @@ def frequency(model, x, v=None, t: float = 0.0, *, blocks: bool | None = None) -
     """Highest frequency [rad/s] of `model` linearised at positions x (N,3) [m] and velocities v (N,3)
     [m/s] (default 0): see the module docstring. blocks: build K and C from the terms' element blocks
     (exact, and gives the Gershgorin bound) rather than by differences of the total force (_ProbePart);
-    default: blocks when every element term is springs (no kernel to compile). Without blocks the bound
+    default: blocks when every element term's are fast (`fast_blocks`: springs, no kernel to compile).
+    Without blocks the bound
     is nan."""
     start = time.perf_counter()
     x = np.asarray(x, dtype=np.float64)
     v = np.zeros_like(x) if v is None else np.asarray(v, dtype=np.float64)
     masses = model.particle_masses()
     if blocks is None:
-        blocks = all(not hasattr(term, "element_arrays") for term in model.element_terms)
+        blocks = all(getattr(term, "fast_blocks", False) for term in model.element_terms)
     stiff = model.element_terms or any(term.has_jacobian for term in model.point_terms)
     if not stiff or not np.any(masses > 0.0):
         return Frequency(0.0, 0.0, 0.0, 0, time.perf_counter() - start)
@@ -332,23 +266,88 @@ def state_frequency(model, state) -> Frequency:
 # ---------------------------------------------------------------- stability regions
 
 
-def _kind(method):
-    """("implicit" | "exempt" | "rk" | "symplectic" | "unknown", tableau or None) of an integrator or name."""
-    name = method if isinstance(method, str) else method.name
-    if name == "implicit_euler" or getattr(method, "implicit", False):
-        return "implicit", None
-    if name == "rk45" or name.startswith("adaptive"):
-        return "exempt", None
-    if name == "symplectic_euler":
-        return "symplectic", None
-    tableau = getattr(method, "tableau", None)
-    if tableau is None and name in ("explicit_euler", "midpoint", "rk4"):
-        from .integrators import runge_kutta  # here: the integrators import the stepper, which imports us
+REGION_KINDS = ("unconditional", "adaptive", "runge_kutta", "symplectic_euler", "step_matrix")
 
-        tableau = {"explicit_euler": runge_kutta.EXPLICIT_EULER, "midpoint": runge_kutta.MIDPOINT}.get(
-            name, runge_kutta.RK4
+
+@dataclass(frozen=True)
+class StabilityRegion:
+    """What an integrator declares about its stability (its `stability_region`), read by the guard,
+    stability_limit and auto_substeps, never its name. kind:
+      "unconditional"     stable at any step (implicit Euler): no limit
+      "adaptive"          the method chooses its own steps (rk45, adaptive): exempt from the guard
+      "runge_kutta"       an explicit Runge-Kutta method: `tableau` (a, b) gives R(z)
+      "symplectic_euler"  symplectic Euler's one-step map (module docstring)
+      "step_matrix"       any one-step method: step_matrix(h, w, c) -> (M, 2, 2) array, its map of (y, y')
+                          over a step h [s] on the modes y'' + c y' + w^2 y = 0 (w [rad/s], c [1/s], (M,))
+    Use the constructors: unconditional(), adaptive(), runge_kutta(tableau), symplectic_euler(),
+    from_step_matrix(fn)."""
+
+    kind: str
+    tableau: object = None
+    step_matrix: object = None
+
+    def __post_init__(self):
+        validate.choice("kind", self.kind, REGION_KINDS)
+        if self.kind == "runge_kutta" and self.tableau is None:
+            raise ParameterError("a runge_kutta stability region needs its tableau")
+        if self.kind == "step_matrix" and not callable(self.step_matrix):
+            raise ParameterError("a step_matrix stability region needs step_matrix(h, w, c) -> (M, 2, 2)")
+
+    @classmethod
+    def unconditional(cls) -> "StabilityRegion":
+        """Stable at any step (an A-stable implicit method)."""
+        return cls("unconditional")
+
+    @classmethod
+    def adaptive(cls) -> "StabilityRegion":
+        """A method that chooses its own steps (exempt from the guard)."""
+        return cls("adaptive")
+
+    @classmethod
+    def runge_kutta(cls, tableau) -> "StabilityRegion":
+        """An explicit Runge-Kutta method's, from its tableau (a, b)."""
+        return cls("runge_kutta", tableau=tableau)
+
+    @classmethod
+    def symplectic_euler(cls) -> "StabilityRegion":
+        """Symplectic Euler's (h w < 2 undamped)."""
+        return cls("symplectic_euler")
+
+    @classmethod
+    def from_step_matrix(cls, step_matrix) -> "StabilityRegion":
+        """Any one-step method's, from its map step_matrix(h, w, c) -> (M, 2, 2) of (y, y') on the modes."""
+        return cls("step_matrix", step_matrix=step_matrix)
+
+    @property
+    def limited(self) -> bool:
+        """Whether the step has a stability limit the guard checks."""
+        return self.kind not in ("unconditional", "adaptive")
+
+
+def check_integrator(integrator) -> None:
+    """Raise ParameterError naming an integrator's class if it declares no StabilityRegion (its
+    `stability_region`); called when it is bound to a model."""
+    region = getattr(integrator, "stability_region", None)
+    if not isinstance(region, StabilityRegion):
+        raise ParameterError(
+            f"integrator {type(integrator).__name__} declares no stability_region (got {region!r}): give "
+            "it a StabilityRegion (unconditional(), adaptive(), runge_kutta(tableau), symplectic_euler() or "
+            "from_step_matrix(fn)), so the stability guard can bound its step"
         )
-    return ("rk", tableau) if tableau is not None else ("unknown", None)
+
+
+def region_of(method) -> StabilityRegion:
+    """The StabilityRegion of an integrator, or of a method named in INTEGRATORS ("adaptive_<base>" too)."""
+    if isinstance(method, str):
+        # cycle: the integrators import this module (their stability regions), so it cannot import them
+        from .integrators import INTEGRATORS
+
+        cls = INTEGRATORS.get("adaptive" if method.startswith("adaptive") else method)
+        if cls is None:
+            raise ParameterError(f"unknown integrator {method!r}; known: {', '.join(INTEGRATORS)}")
+        method = cls
+    check_integrator(method)
+    return method.stability_region
 
 
 def _rk_increment(tableau, z: np.ndarray) -> np.ndarray:
@@ -363,10 +362,14 @@ def _rk_increment(tableau, z: np.ndarray) -> np.ndarray:
     return sum(b * ks for b, ks in zip(tableau.b, stages, strict=True))
 
 
-def _log_radius2(kind, tableau, h: float, w: np.ndarray, c: np.ndarray) -> np.ndarray:
+def _log_radius2(region, h: float, w: np.ndarray, c: np.ndarray) -> np.ndarray:
     """ln rho^2 of one step h on each mode (w [rad/s], c [1/s] damping per unit mass): the energy growth
-    per step, computed without cancelling against 1."""
-    if kind == "symplectic":
+    per step, computed without cancelling against 1 (but for a step_matrix region: from its eigenvalues)."""
+    if region.kind == "step_matrix":
+        m = np.asarray(region.step_matrix(h, w, c), dtype=np.float64).reshape(len(w), 2, 2)
+        rho = np.abs(np.linalg.eigvals(m)).max(axis=1)
+        return 2.0 * np.log(np.maximum(rho, 1e-300))
+    if region.kind == "symplectic_euler":
         # One-step map [[1 - h^2 w^2, h (1 - h c)], [-h w^2, 1 - h c]]: det = 1 - h c, tr = 2 - a with
         # a = h^2 w^2 + h c, and tr^2/4 - det = a^2/4 - h^2 w^2.
         a = h * h * w * w + h * c
@@ -376,25 +379,25 @@ def _log_radius2(kind, tableau, h: float, w: np.ndarray, c: np.ndarray) -> np.nd
         return np.where(disc < 0.0, complex_pair, 2.0 * np.log(np.maximum(real, 1e-300)))
     disc = np.sqrt((c * c / 4.0 - w * w).astype(complex))
     z = h * np.concatenate([-c / 2.0 + disc, -c / 2.0 - disc])
-    zp = z * _rk_increment(tableau, z)  # R - 1
+    zp = z * _rk_increment(region.tableau, z)  # R - 1
     return np.log1p(np.maximum(2.0 * zp.real + np.abs(zp) ** 2, -1.0 + 1e-15))
 
 
 def stability_limit(method, omega: float, zeta: float = 0.0, *, growth: float = GROWTH) -> float | None:
     """Largest step [s] of `method` (an integrator or its name) on modes up to omega [rad/s] with damping
-    ratio zeta at the top (see the module docstring): inf for implicit Euler, None for methods that need
-    no limit or have none known (rk45, adaptive)."""
-    kind, tableau = _kind(method)
-    if kind in ("exempt", "unknown"):
+    ratio zeta at the top (see the module docstring), from its stability_region: inf for an unconditional
+    one (implicit Euler), None for adaptive methods (rk45, adaptive), which choose their own steps."""
+    region = region_of(method)
+    if region.kind == "adaptive":
         return None
-    if kind == "implicit" or omega <= 0.0:
+    if region.kind == "unconditional" or omega <= 0.0:
         return math.inf
     w = omega * _MODES
     c = 2.0 * zeta * omega * _MODES**2
     rate = math.log1p(growth)
 
     def ok(h: float) -> bool:
-        return bool(np.all(_log_radius2(kind, tableau, h, w, c) <= rate * h))
+        return bool(np.all(_log_radius2(region, h, w, c) <= rate * h))
 
     # Scan up from far below any limit, then bisect: the first failure counts (regions need not be
     # intervals in h for every method, and the first crossing is the one a user meets).
@@ -448,8 +451,7 @@ def guard(stepper, state, dt: float) -> None:
     if stepper.policy.stability == "ignore":
         return
     method = stepper.integrator
-    kind, _ = _kind(method)
-    if kind in ("exempt", "unknown", "implicit"):
+    if not region_of(method).limited:
         return
     est = _guard_estimate(stepper, state)
     if est is None:
@@ -487,8 +489,7 @@ def auto_substeps(
     if safety > 1.0:
         raise ParameterError(f"safety must lie in (0, 1], got {safety!r}")
     record = {"mode": "auto", "safety": safety, "method": integrator.name}
-    kind, _ = _kind(integrator)
-    if kind in ("exempt", "unknown", "implicit"):
+    if not region_of(integrator).limited:
         return 1, {**record, "substeps": 1, "limit": None}
     stepper = integrator.stepper_for(model)
     est = _estimate(stepper, model.state() if state is None else state)

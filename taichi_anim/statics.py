@@ -11,16 +11,16 @@ at the absolute residual 0.1 tol g min(m) (2-norm over free particles: enough fo
 the lightest particle), so the last solves do not reduce the linear residual further than the stopping
 test needs, nor iterate on a right-hand side at round-off.
 
-Globalisation (when every force has a potential: springs, membrane, bending, gravity, anchor springs,
-uniform wind at v = 0; not aerodynamics). E(x) = the terms' energies (Model.energy) - sum m g.x
-- sum k w.x (wind) + the anchor springs'. A step is accepted when it satisfies Armijo's condition
-E(x + a dx) <= E(x) - 1e-4 a f.dx, halving a from 1 (Nocedal & Wright, "Numerical Optimization", 2nd ed.
-2006, alg. 3.1); a change of E within round-off of its parts also passes (near the solution E no longer
-resolves progress). h is the Levenberg-Marquardt parameter: doubled (up to h_max) after a full step,
-multiplied by a after a step cut to a. Without a potential (aerodynamics) the step is cut until the
-norm of the free forces decreases instead, with the same h rule: a heuristic only (the implicit system
-holds no aerodynamic Jacobian, and a sheet in wind may have no static state). line_search=False takes
-every step whole at the given h.
+Globalisation (when every force has a potential at v = 0: springs, membrane, bending, gravity, anchor springs,
+uniform wind, a user's term of energy_kind "potential"; not aerodynamics). E(x) = the sum of the terms'
+`static_potential`s (terms/base.py): their energies, - sum m g.x, - sum k w.x (wind). A step is accepted when
+it satisfies Armijo's condition E(x + a dx) <= E(x) - 1e-4 a f.dx, halving a from 1 (Nocedal & Wright,
+"Numerical Optimization", 2nd ed. 2006, alg. 3.1); a change of E within round-off of its parts also passes
+(near the solution E no longer resolves progress). h is the Levenberg-Marquardt parameter: doubled (up to
+h_max) after a full step, multiplied by a after a step cut to a. Without a potential (aerodynamics) the step
+is cut until the norm of the free forces decreases instead, with the same h rule: a heuristic only (the
+implicit system holds no aerodynamic Jacobian, and a sheet in wind may have no static state).
+line_search=False takes every step whole at the given h.
 
 Acceleration. Where a term projects its Hessian (springs' and the membrane's compression clamps, the
 Gauss-Newton bending Hessian), Newton converges only linearly: a hanging cloth's compressed top edge or
@@ -56,7 +56,6 @@ from . import validate
 from .errors import DivergenceError
 from .integrators import IntegratorImplicitEuler
 from .runtime import np_float
-from .terms import AnchorSpring, Drag, Gravity
 
 G = 9.81  # [m/s^2] the weight that scales the stopping test
 ARMIJO = 1e-4
@@ -84,33 +83,18 @@ def _solver(model):
     return got
 
 
-def _potential(model):
-    """E(x) -> (energy [J], round-off scale [J]) of every force at zero velocity, or None if one has no
-    potential (a term without energy, e.g. aerodynamics)."""
-    if any(not getattr(t, "has_energy", False) for t in model.element_terms):
-        return None
+def _potential(model, x0):
+    """E(x) -> (energy [J], round-off scale [J]) of every force at zero velocity (each term's
+    static_potential: elastic energies, -sum m g.x, -sum k w.x of uniform wind, a user's potential), or
+    None if one has no potential (a source such as aerodynamics) at the start positions x0 (N,3) [m]."""
     m = model.particle_masses()
-    free = m > 0.0
-    body = np.zeros(3)  # sum of the uniform body accelerations
-    wind = np.zeros(3)  # sum of k w of the wind terms: a constant force per particle at v = 0
-    anchors = []
-    for t in model.point_terms:
-        if isinstance(t, Gravity):
-            body += np.asarray(t.g, dtype=np.float64)
-        elif isinstance(t, Drag):
-            wind += t.k * np.asarray(t.wind, dtype=np.float64)
-        elif isinstance(t, AnchorSpring):
-            p = t.params.to_numpy().astype(np.float64)
-            anchors.append((t.anchor.to_numpy().astype(np.float64), p[:, 0], p[:, 1]))
-        else:
-            return None
+    # Element terms first, then pointwise ones: the order in which their parts are summed.
+    terms = list(model.element_terms) + list(model.point_terms)
+    if any(t.static_potential(x0, m) is None for t in terms):
+        return None
 
     def energy(x):
-        parts = list(model.energy(x).values())
-        parts.append(-float(np.sum(m * (x @ body))))
-        parts.append(-float(np.sum(x[free] @ wind)))
-        for anchor, k, rest in anchors:
-            parts.append(0.5 * float(np.sum(k * (np.linalg.norm(x - anchor, axis=1) - rest) ** 2)))
+        parts = [float(t.static_potential(x, m)) for t in terms]
         return sum(parts), sum(abs(p) for p in parts)
 
     return energy
@@ -156,11 +140,11 @@ def solve_static(
     weight = np.maximum(masses, 1e-300) * G
     mass_norm = float(np.linalg.norm(masses[free]))
     mass_min = float(masses[free].min()) if free.any() else 0.0
-    energy = _potential(model) if line_search else None
+    x = state.particle_x.to_numpy().astype(np.float64)
+    energy = _potential(model, x) if line_search else None
     roundoff = 1e3 * float(np.finfo(np_float()).eps)  # relative noise of an energy sum
     zero = np.zeros((n, 3))
     zero_f = zero.astype(np_float())
-    x = state.particle_x.to_numpy().astype(np.float64)
     e0, scale0 = energy(x) if energy else (None, None)
     eta = ETA_MAX
     f_norm_prev = None

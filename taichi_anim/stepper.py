@@ -1,23 +1,23 @@
-"""The world step: one driver owns what every time-integration method shares — emission, sphere
-contacts and their substeps, the finish tail of a step (alive check, colliders, the divergence watchdog,
-release of dead slots), trails, time, and what happens when a step diverges (raise, or roll back and
-retry) — while a method (integrators/) supplies only its update. Newton separates `solver.step(...)`
-from its collision pipeline the same way."""
+"""The world step: one driver owns what every time-integration method shares — emission, the ordered
+list of solvers that correct what the method proposed (sphere contacts, cloth self-contact, a user's;
+solvers.py holds their protocol) and the substeps they ask for, trails, time, and what happens when a
+step diverges (raise, or roll back and retry) — while a method (integrators/) supplies only its update,
+ended by the finish tail (finish.py). Newton separates `solver.step(...)` from its collision pipeline the
+same way.
+
+This is the one way to step: `Integrator.step(model, state, dt)` is a shortcut to the Stepper that
+`Integrator.stepper_for(model)` keeps."""
 
 import math
 import weakref
 
-import taichi as ti
-
 from . import runtime, stability, validate
-from .collision import collide
-from .collision.motion import follow_attachments
-from .collision.self_contact import SelfContact
-from .collision.spheres import ContactSpheres
 from .errors import DivergenceError, ParameterError
 from .health import Health
+from .integrators.implicit_euler import IntegratorImplicitEuler
+from .solvers import check_solver, make_solvers
 from .state import State
-from .watchdog import Watchdog, watch_particle
+from .watchdog import Watchdog
 
 MAX_STABLE_SPLIT = 4096  # the most substeps the retry policy takes from the stability estimate
 # A frame of substeps of a fusable method runs as one serial kernel on the CPU below this much work
@@ -25,28 +25,6 @@ MAX_STABLE_SPLIT = 4096  # the most substeps the retry policy takes from the sta
 # ~80 us to join a loop here); above it, one parallel launch per substep (benchmarks/results/frame_fusion.md:
 # serial frame faster up to 80^2 cloth, 82k work; launches from 96^2, 118k).
 FRAME_SERIAL_BELOW = 100_000
-
-
-@ti.func
-def finish_particle(
-    model: ti.template(), state: ti.template(), mode: ti.template(), i, x0, v0, x1, v1, t, h, step
-):
-    """The end of a step [t, t + h] for particle i, fused into a method's last kernel: colliders against
-    the step's start point (x0, v0), attached particles onto their targets, the divergence watchdog
-    (non-finite or out-of-bounds results, watchdog.py), and the write.
-
-    Pinned particles (mass 0) are kinematic, as in Blender, Houdini Vellum and Newton: colliders never
-    move them, even one placed inside a collider (State.set_positions); they go only where their
-    velocity or their attachment's target takes them."""
-    x, v = x1, v1
-    if ti.static(model.collider_count > 0):
-        if model.inv_mass(i) > 0.0:
-            x, v = collide(model.colliders, mode, x0, v0, x1, v1, t, h, model.radius(i), model.rest_speed)
-    if ti.static(model.attachment_count > 0):
-        x, v = follow_attachments(model.attachments, model.particle_attachment, i, x0, x, v, t + h, h)
-    watch_particle(state, i, x, v, t + h, step)
-    state.particle_x[i] = x
-    state.particle_v[i] = v
 
 
 class Stepper:
@@ -57,13 +35,15 @@ class Stepper:
     them). On divergence the policy (`policy.divergence`) decides: "raise" (DivergenceError); "retry":
     roll the state back to the step's start and redo the step in 2, 4, ... substeps, up to
     `policy.max_retries` halvings; "implicit": roll back and redo it with implicit Euler (in 1, 2, ...
-    substeps, `max_retries` attempts). Under every policy a DivergenceError leaves the state at the last
-    good step that was checked (with `check_every` = 1, the step before the bad one; with k > 1, the
-    last multiple of k before it): positions, velocities, lifetimes, emission, trails, time and step
-    count, bitwise, from a copy taken at the start of each checked step (one copy kernel per step, or per
-    frame of fused substeps). A recovery is a "divergence_recovered" event in `health`, and the
-    substeps (and method) that worked are kept for the following steps until dt changes. With a recovering
-    policy the watchdog is read after every step (the rollback point is the step's start), the energy
+    substeps, `max_retries` attempts). Under the recovering policies, and under "raise" with
+    `policy.keep_last_good`, a DivergenceError leaves the state at the last good step that was checked
+    (with `check_every` = 1, the step before the bad one; with k > 1, the last multiple of k before it):
+    positions, velocities, lifetimes, emission, trails, time and step count, bitwise, from a copy taken at
+    the start of each checked step (one copy kernel per step, or per frame of fused substeps); without
+    it the state holds the step that diverged, and the error says so. A recovery is a
+    "divergence_recovered" event in `health`, and the substeps (and method) that worked are kept for the
+    following steps until dt changes. With a recovering policy the watchdog is read after every step (the
+    rollback point is the step's start), the energy
     (where the scene has one) is evaluated every step (`watchdog.energy_every` = 1; a larger value trades
     recoveries for speed), and the state is saved into a backup State before each step. A rollback
     restores the State (see `State.save`); it does not undo solver-side counters and warm starts
@@ -86,17 +66,17 @@ class Stepper:
         self._guarded_dt = None  # the step the stability guard last checked
         self._frame_mode = None  # how a frame of substeps is launched (frame_mode), chosen on first use
         self.watchdog = Watchdog(model)
-        # The rollback point (a State saved at the last good checked step, `_keep_good`), under every
-        # policy: a DivergenceError leaves the state there; recovering policies also redo the step from
-        # it. For "implicit", the fallback method too; both made now so that nothing is allocated mid-run.
+        # The rollback point (a State saved at the last good checked step, `_keep_good`): recovering
+        # policies redo the step from it, and with policy.keep_last_good a DivergenceError leaves the state
+        # there. Off by default: the copy is a launch and a memcpy per step, which cost a third of a
+        # 10^4-particle step (benchmarks/regression.py). For "implicit", the fallback method too; both
+        # made now so that nothing is allocated mid-run.
         recovering = self.policy.divergence != "raise"
         self._recovering = recovering
-        self._backup = State(model)
+        self._backup = State(model) if recovering or self.policy.keep_last_good else None
         self._backup_of = None  # weak reference to the State the backup was saved from
         self._fallback = None
         if self.policy.divergence == "implicit":
-            from .integrators.implicit_euler import IntegratorImplicitEuler
-
             self._fallback = IntegratorImplicitEuler(
                 collision_mode=integrator.collision_mode, policy=self.policy
             )
@@ -111,13 +91,36 @@ class Stepper:
             # A step can store energy (a spring stretched past any stable length) before anything moves
             # fast: only the energy shows it in time to roll back, so it is evaluated every step.
             self.watchdog.energy_every = 1
-        # The sphere-contact solver (its neighbour grid, predictions and sweep buffers), when the scene
-        # has sphere contacts.
-        opts = model.sphere_contacts
-        self.contacts = None if opts is None else ContactSpheres(model, **opts)
-        # Cloth self- and cloth-cloth contact (its hierarchies, pair lists and bounds), when asked for.
-        opts = model.self_contact
-        self.self_contact = None if opts is None else SelfContact(model, **opts)
+        # The solvers that correct each substep the method proposes, in order (solvers.py): sphere
+        # contacts (a neighbour grid, predictions, sweep buffers), then cloth self- and cloth-cloth
+        # contact (hierarchies, pair lists, bounds), each when the scene asked for it; each owns its fields.
+        self.solvers = make_solvers(model)
+
+    def add_solver(self, solver, *, index: int | None = None) -> None:
+        """Put `solver` (an object with the hooks of solvers.py's protocol) in the list, at the end or
+        before position `index`; it then acts on every substep from the next step on (and frames are
+        stepped substep by substep). ParameterError if it lacks a hook."""
+        check_solver(solver)
+        if index is None:
+            self.solvers.append(solver)
+        else:
+            self.solvers.insert(validate.count("index", index, 0, len(self.solvers)), solver)
+        self._frame_mode = None  # fused frames would skip it
+
+    def solver(self, name: str):
+        """The first solver in the list called `name`, or None."""
+        return next((s for s in self.solvers if s.name == name), None)
+
+    @property
+    def contacts(self):
+        """The sphere-contact solver (collision/spheres.py), or None when the scene has no sphere
+        contacts."""
+        return self.solver("sphere contacts")
+
+    @property
+    def self_contact(self):
+        """The cloth self-contact solver (collision/self_contact.py), or None."""
+        return self.solver("self-contact")
 
     def step(self, state, dt: float, substeps: int = 1) -> None:
         """Advance `state` by dt [s] in `substeps` equal steps of dt / substeps: the same as that many
@@ -137,9 +140,12 @@ class Stepper:
             stability.guard(self, state, dt)
             self._guarded_dt = dt
             self._recovery = None
-        if self.watchdog.derived is None and self.contacts is not None:
-            overlap = self.contacts.overlap_stats(model, state)[0]  # spheres placed overlapping
-            self.watchdog.separation_speed = overlap / dt
+        if self.watchdog.derived is None:
+            speeds = [
+                s.separation_speed(model, state, dt) for s in self.solvers if hasattr(s, "separation_speed")
+            ]
+            if speeds:
+                self.watchdog.separation_speed = max(speeds)
         self.watchdog.arm(state, dt)
         if not self._recovering:
             self._keep_good(state)
@@ -160,10 +166,10 @@ class Stepper:
         except BaseException:  # any failure (a solver giving up under "raise", Ctrl-C): the last good state
             state.restore(self._backup)
             raise
-        if self.self_contact is not None and state.step_count % self.integrator.check_every == 0:
+        if self.solvers and state.step_count % self.integrator.check_every == 0:
             try:
-                self.self_contact.read_stats()
-            except DivergenceError as e:  # a pair list overflowed: back to the step's start
+                self._check_solvers(state)
+            except DivergenceError as e:  # a solver's own verdict (a pair list overflowed): the step's start
                 raise self._roll_back(state, e) from None
 
     def advance(self, state, h: float, count: int) -> None:
@@ -218,8 +224,7 @@ class Stepper:
             for why, present in (
                 (f"{method.name} prepares stages between substeps", not method.fusable),
                 ("emitters", model.emitter_count > 0),
-                ("sphere contacts", self.contacts is not None),
-                ("self-contact", self.self_contact is not None),
+                *((s.name, True) for s in self.solvers),
                 ("colliders prepared per step", bool(model._prepared_colliders)),
                 ("trails", model.trail_length > 0),
                 (
@@ -271,21 +276,29 @@ class Stepper:
         diverged (non-finite or out-of-bounds particles; energy growth, evaluated every
         `watchdog.energy_every` steps, or now with energy=True). The runner calls it with energy=True
         before exporting a frame, so nothing after a bad step is written. On an error the state is first
-        rolled back to the last good checked step (`_roll_back`), under every policy."""
+        rolled back to the last good checked step (`_roll_back`) where a copy is kept
+        (`policy.keep_last_good`, or a recovering policy)."""
         error = self._divergence(state) or self.watchdog.energy_error(state, now=energy)
-        if error is None and self.self_contact is not None:
+        if error is None:
             try:
-                self.self_contact.read_stats()
-            except DivergenceError as e:  # a pair list overflowed
+                self._check_solvers(state)
+            except DivergenceError as e:  # a solver's own verdict (a pair list overflowed)
                 error = e
         if error is not None:
             raise self._roll_back(state, error)
+
+    def _check_solvers(self, state) -> None:
+        """Each solver's `check` (its statistics), in list order; a DivergenceError propagates."""
+        for s in self.solvers:
+            s.check(state)
 
     def _keep_good(self, state, *, always: bool = False) -> None:
         """Save `state` as the rollback point when it is at a checked step (a multiple of
         `check_every`, whose watch was read and found good), or when it is not the State saved last (its
         first step here; `always`: every step, for the recovering policies). One copy kernel: positions,
         velocities, lifetimes, emission and trails (State.save), a memcpy of the state's fields."""
+        if self._backup is None:
+            return
         every = 1 if always else self.integrator.check_every
         saved = None if self._backup_of is None else self._backup_of()
         if saved is not state or state.step_count % every == 0:
@@ -303,12 +316,18 @@ class Stepper:
             state.restore(self._backup)
         if error is None:
             return None
-        where = (
-            f"the state is left at the last good step checked, step {state.step_count} "
-            f"(t = {state.time:.6g} s)"
-            if saved is state
-            else "the state could not be rolled back (it was never stepped by this stepper)"
-        )
+        if saved is state:
+            where = (
+                f"the state is left at the last good step checked, step {state.step_count} "
+                f"(t = {state.time:.6g} s)"
+            )
+        elif self._backup is None:
+            where = (
+                "the state holds the step that diverged (Policy(keep_last_good=True) keeps the last good "
+                "step, at the cost of a state copy per step)"
+            )
+        else:
+            where = "the state could not be rolled back (it was never stepped by this stepper)"
         return DivergenceError(
             f"{error}; {where}",
             step=error.step,
@@ -384,20 +403,20 @@ class Stepper:
         return min(math.ceil(dt / (stability.AUTO_SAFETY * limit)), MAX_STABLE_SPLIT)
 
     def _step(self, state, dt: float, method, split: int) -> None:
-        """Emission, the method's advance in substeps (sphere contacts' own times `split`), trails,
-        time."""
+        """Emission, the method's advance in substeps (the most any solver asks for, times `split`),
+        each corrected by the solvers, trails, time."""
         model = self.model
         if model.emitter_count:
             model.emit(state, dt)
-        contacts = self.contacts
-        # Sphere contacts after every (sub)step; continuous contacts choose substeps from v_max.
-        n = split * (1 if contacts is None else contacts.substeps(model, state, dt))
+        solvers = self.solvers
+        # Continuous sphere contacts choose their substeps from v_max; the others ask for none.
+        n = split * max((s.substeps(model, state, dt) for s in solvers), default=1)
         h = dt / n
         t0 = state.time
         for k in range(n):
             state.time = t0 + k * h
             model.prepare_colliders(state.time, h)
-            self._advance(state, h, method, contacts)
+            self._advance(state, h, method, solvers)
         state.time = t0
         if state.trail_length:
             state.record_trails(state.trail_head)
@@ -405,14 +424,13 @@ class Stepper:
         state.time += dt
         state.step_count += 1
 
-    def _advance(self, state, h: float, method, contacts=None) -> None:
-        """The method's step by h, sphere contacts, then cloth self-contact on the result (last: nothing
-        may move a cloth vertex after its guard)."""
-        sc = self.self_contact
-        if sc is not None:
-            sc.begin(self.model, state)
-        method.advance_step(self.model, state, h)
-        if contacts is not None:
-            contacts.solve(self.model, state, h, state.step_count + 1)
-        if sc is not None:
-            sc.solve(self.model, state, h)
+    def _advance(self, state, h: float, method, solvers) -> None:
+        """The method's step by h, then each solver on the result in list order (Gauss-Seidel: each
+        reads what the ones before it wrote; self-contact is last, nothing may move a cloth vertex after
+        its guard)."""
+        model = self.model
+        for s in solvers:
+            s.before_substep(model, state, h)
+        method.advance_step(model, state, h)
+        for s in solvers:
+            s.after_substep(model, state, h, state.step_count + 1)

@@ -16,6 +16,8 @@ import taichi as ti
 from . import runtime, validate
 from .errors import ParameterError
 from .io.export import area_weighted_normals, atomic_path
+from .render import fit_camera
+from .render.image import _segments
 
 INSTALL_HINT = (
     "on Debian/Ubuntu: apt-get install libvulkan1 mesa-vulkan-drivers (lavapipe, a software Vulkan driver; "
@@ -330,9 +332,6 @@ class Viewer:
         self, points, colors, radius, lines, line_colors, line_width, triangles, mesh_color, mesh_colors
     ):
         """Validate and upload this frame's data; returns the scene calls to replay."""
-        from .render import fit_camera
-        from .render.image import _segments
-
         calls = []
         bounds = []
         if points is not None:

@@ -17,13 +17,19 @@ kernel, `watch_particle`, at the cost of a few flops per particle):
   (sqrt(2 |g| H), H its box diagonal), the initial elastic energy put into the lightest particle
   (sqrt(2 E_el / m_min)), and at least 1 m/s. Explosions grow geometrically (by (h w)^2 per step for a
   stiff spring past its limit), so a generous factor costs only a step or two of detection.
-* energy, where the scene has one (every term conservative or dissipative: no wind, aerodynamics,
-  emitters, attachments or moving colliders): E(t) <= E(0) + ENERGY_FACTOR E_s, with E the kinetic plus
-  potential energy (gravity, springs, membrane, bending, anchors) and E_s = KE(0) + E_el(0) + M |g| H +
-  M (1 m/s)^2 / 2 all the energy the scene holds or can release. Damping, drag, contacts and colliders only
-  remove energy; an explicit method's bounded energy error stays well inside (symplectic Euler's energy
-  swings by a factor (1 + a) / (1 - a), a = h w / 2, on an oscillator: 3 at a = 1/2). Evaluated every
-  `energy_every` steps (it copies the state to NumPy), when a check is due.
+* energy, where the scene has one (every term of energy_kind "potential" or "dissipative": no source
+  such as wind or aerodynamics, no emitters, attachments or moving colliders; `describe()` says what
+  switched it off): E(t) <= E(0) + ENERGY_FACTOR E_s, with E the kinetic plus potential energy (every
+  potential term's `energy`: gravity, springs, membrane, bending, anchors, a user's) and
+  E_s = KE(0) + E_el(0) + M |g| H + M (1 m/s)^2 / 2 all the energy the scene holds or can release.
+  Damping, drag, contacts and colliders only remove energy; an explicit method's bounded energy error
+  stays well inside (symplectic Euler's energy swings by a factor (1 + a) / (1 - a), a = h w / 2, on an
+  oscillator: 3 at a = 1/2). Evaluated every `energy_every` steps (it copies the state to NumPy), when a
+  check is due.
+
+Each part supplies what its bounds need (terms/base.py, collision/colliders.py): a term its
+speed_bound (wind), acceleration_bound (|g|), stored_energy (E_el) and energy; a collider its
+sample_points at its key_times and its velocity_bound. A part without them is refused when it is added.
 
 The kernel compares with constants (a box lo..hi and a squared speed): the bounds at the end of a window
 over which they loosen by at most a tenth, rewritten by the Stepper once per window, not per step.
@@ -113,6 +119,7 @@ class Watchdog:
         self.version = 0  # bumped on every change: states rewrite their limit field
         self.derived = None  # dict of the derived quantities, made on the first `arm`
         self._energy = None  # E(x, v) -> J, or None when the scene has no energy
+        self.energy_reason = None  # why the energy is not checked (energy_unchecked), once derived
 
     def configure(self, *, extent="keep", speed="keep", energy_tolerance="keep", energy_every=None):
         """Override bounds. extent: (lo, hi) [m] a fixed box particles must stay in, math.inf (off) or
@@ -142,6 +149,7 @@ class Watchdog:
         if self.derived is None:
             self.derived = scene_bounds(self.model, state, self.separation_speed)
             self._energy = energy_function(self.model)
+            self.energy_reason = energy_unchecked(self.model)
         if state.watch_version != self.version or state.time + dt > state.watch_until:
             # The bounds grow with time; the kernel tests constants: those at the end of a window in
             # which they loosen by at most a tenth (one field write per window, not per step).
@@ -204,6 +212,8 @@ class Watchdog:
     def describe(self) -> dict:
         """The bounds in force (for run summaries): derived values and overrides."""
         out = {"energy_every": self.energy_every, "energy_checked": self._energy is not None}
+        if self.energy_reason is not None:
+            out["energy_unchecked"] = self.energy_reason
         if self.derived is not None:
             lo, hi, v = self.limits_at(0.0)
             out.update(
@@ -302,16 +312,17 @@ class Watchdog:
 
 def scene_bounds(model, state, separation_speed: float = 0.0) -> dict:
     """The scene's box (centre, half-size), reference speed, |g| and energy scale (see the module doc);
-    separation_speed [m/s]: how fast contacts push the start's overlapping spheres apart."""
-    from .terms import AeroTriangles, AnchorSpring, Drag, Gravity
-
+    separation_speed [m/s]: how fast contacts push the start's overlapping spheres apart. Every part is
+    asked, never its class: colliders for their points over their keyframes and their speed, terms for
+    the speed and uniform acceleration they supply and the energy they hold (terms/base.py)."""
     alive = state.alive_mask()
-    x = state.particle_x.to_numpy().astype(np.float64)[alive]
+    x_all = state.particle_x.to_numpy().astype(np.float64)
+    x = x_all[alive]
     v = state.particle_v.to_numpy().astype(np.float64)[alive]
     points = [x.reshape(-1, 3)]
     speeds = [float(np.max(np.linalg.norm(v, axis=1), initial=0.0)), separation_speed]
     for c in model.colliders:
-        p, s = _collider_points(c)
+        p, s = collider_reach(c)
         points.append(p)
         speeds.append(s)
     for a in model.attachments:
@@ -322,25 +333,19 @@ def scene_bounds(model, state, separation_speed: float = 0.0) -> dict:
         es = e.s
         points.append(np.asarray(es.center) + np.array([[-1.0], [1.0]]) * np.asarray(_emitter_size(es)))
         speeds.append(es.speed * (1.0 + es.speed_jitter))
+    masses = model.particle_masses()
     g = 0.0
+    elastic = 0.0
     for t in model.terms:
-        if isinstance(t, Gravity):
-            g += float(np.linalg.norm(t.g))
-        elif isinstance(t, Drag):
-            speeds.append(float(np.linalg.norm(t.wind)))
-        elif isinstance(t, AeroTriangles):
-            speeds.append(float(np.linalg.norm(t.wind)) * (1.0 + t.gust_amplitude))
+        g += float(t.acceleration_bound())
+        speeds.append(float(t.speed_bound()))
+        elastic += float(t.stored_energy(x_all, masses))
     allp = np.concatenate([p.reshape(-1, 3) for p in points if len(p)])
     lo, hi = allp.min(axis=0), allp.max(axis=0)
     height = float(np.linalg.norm(hi - lo))
-    masses = model.particle_masses()
     free = masses[masses > 0]
     m_min = float(free.min()) if len(free) else math.inf
     total_mass = float(masses[alive].sum())
-    elastic = float(sum(model.energy(state.particle_x.to_numpy()).values()))
-    for t in model.point_terms:
-        if isinstance(t, AnchorSpring):
-            elastic += _anchor_energy(t, state.particle_x.to_numpy().astype(np.float64))
     speeds += [math.sqrt(2.0 * g * height), math.sqrt(2.0 * max(elastic, 0.0) / m_min), SPEED_FLOOR]
     v_ref = max(speeds)
     kinetic = 0.5 * float(np.sum(masses[alive][:, None] * v**2))
@@ -354,53 +359,48 @@ def scene_bounds(model, state, separation_speed: float = 0.0) -> dict:
     }
 
 
-def energy_function(model):
-    """E(state) -> kinetic plus potential energy [J] (gravity, anchors, every element term's), or None if
-    the scene can gain energy from outside (emitters, attachments, moving colliders, wind, a term without
-    an energy). The pointwise part is one reduction kernel (f64 sums); element terms and anchors read the
-    positions in NumPy."""
-    from .terms import AnchorSpring, Drag, Gravity
-
+def energy_unchecked(model) -> str | None:
+    """Why the scene's energy is not checked (it can gain energy from outside), or None if it is: an
+    emitter, an attachment, a moving collider or a force term that is a source (energy_kind "source")."""
     if model.emitter_count or model.attachment_count:
+        return "the scene has emitters or attachments (they add energy)"
+    moving = [type(c).__name__ for c in model.colliders if c.moving]
+    if moving:
+        return f"moving collider(s) {', '.join(moving)} can add energy"
+    sources = [type(t).__name__ for t in model.terms if t.energy_kind == "source"]
+    if sources:
+        return f"force term(s) {', '.join(sources)} can add energy (energy_kind 'source')"
+    return None
+
+
+def energy_function(model):
+    """E(state) -> kinetic plus potential energy [J] (every term of energy_kind "potential": gravity,
+    springs, membrane, bending, anchors, a user's), or None if the scene can gain energy from outside
+    (energy_unchecked). The kinetic part is one reduction kernel (f64 sums); the potentials read the
+    positions in NumPy."""
+    if energy_unchecked(model) is not None:
         return None
-    if any(getattr(c, "moving", False) for c in model.colliders):
-        return None
-    if any(not getattr(t, "has_energy", False) for t in model.element_terms):
-        return None
-    g = np.zeros(3)
-    anchors = []
-    for t in model.point_terms:
-        if isinstance(t, Gravity):
-            g += np.asarray(t.g, dtype=np.float64)
-        elif isinstance(t, AnchorSpring):
-            anchors.append(t)
-        elif not (isinstance(t, Drag) and not any(t.wind)):
-            return None  # wind, or a term this check does not know
+    potentials = [t for t in model.terms if t.energy_kind == "potential"]
+    masses = model.particle_masses()
     out = ti.field(ti.f64, ())
-    gx, gy, gz = (float(c) for c in g)
 
     def energy(state) -> float:
         out[None] = 0.0
-        _point_energy(model, state, gx, gy, gz, out)
+        _kinetic_energy(model, state, out)
         e = float(out[None])
-        if model.element_terms or anchors:
+        if potentials:
             x = state.particle_x.to_numpy().astype(np.float64)
-            e += sum(t.energy(x) for t in model.element_terms)
-            e += sum(_anchor_energy(t, x) for t in anchors)
+            e += sum(float(t.energy(x, masses)) for t in potentials)
         return e
 
     return energy
 
 
 @ti.kernel
-def _point_energy(
-    model: ti.template(), state: ti.template(), gx: float, gy: float, gz: float, out: ti.template()
-):
+def _kinetic_energy(model: ti.template(), state: ti.template(), out: ti.template()):
     for i in range(model.particle_count):
-        m = model.mass(i)
         v = state.particle_v[i]
-        gravity = m * ti.Vector([gx, gy, gz]).dot(state.particle_x[i])
-        out[None] += ti.cast(0.5 * m * v.norm_sqr() - gravity, ti.f64)
+        out[None] += ti.cast(0.5 * model.mass(i) * v.norm_sqr(), ti.f64)
 
 
 def _extent(extent):
@@ -429,42 +429,18 @@ def _limit(name: str, value, zero: bool = False):
     return v
 
 
-def _anchor_energy(term, x: np.ndarray) -> float:
-    p = term.params.to_numpy().astype(np.float64)
-    a = term.anchor.to_numpy().astype(np.float64)
-    return 0.5 * float(np.sum(p[:, 0] * (np.linalg.norm(x - a, axis=1) - p[:, 1]) ** 2))
-
-
 def _emitter_size(es) -> tuple:
     r = es.size[0]
     return tuple(es.size) if es.shape.value == "box" else (r, r, r)
 
 
-def _collider_points(c) -> tuple[np.ndarray, float]:
-    """Points of a collider's finite geometry over its keyframes (world) and their largest speed [m/s]."""
-    if hasattr(c, "n") and hasattr(c, "offset"):  # a plane: its point nearest the frame's origin
-        local = np.asarray(c.n)[None, :] * c.offset
-    elif hasattr(c, "lo"):
-        lo, hi = np.asarray(c.lo), np.asarray(c.hi)
-        local = np.array([[(lo, hi)[(k >> a) & 1][a] for a in range(3)] for k in range(8)])
-    elif hasattr(c, "center"):
-        local = np.asarray(c.center) + c.radius * np.vstack([np.eye(3), -np.eye(3)])
-    elif hasattr(c, "vertices"):
-        local = np.asarray(c.vertices, dtype=np.float64)
-        if getattr(c, "frames", None) is not None:
-            times, frames = c.frames
-            return _keyframed(lambda t: _frame_at(times, frames, t), times)
-    else:
-        return np.zeros((0, 3)), 0.0
-    motion = getattr(c, "motion", None)
-    if motion is None:
-        return local, 0.0
-    return _keyframed(lambda t: motion.apply(local, t), motion.times)
-
-
-def _frame_at(times, frames, t):
-    k = int(np.clip(np.searchsorted(times, t), 0, len(times) - 1))
-    return frames[k]
+def collider_reach(c) -> tuple[np.ndarray, float]:
+    """Points of a collider's finite geometry over its keyframes (world) and its largest speed [m/s]:
+    its sample_points at each of its key_times (or at 0 if it is static) and its velocity_bound."""
+    times = c.key_times()
+    times = [0.0] if times is None or len(times) == 0 else times
+    points = [np.asarray(c.sample_points(float(t)), dtype=np.float64).reshape(-1, 3) for t in times]
+    return np.concatenate(points), float(c.velocity_bound())
 
 
 def _keyframed(at, times) -> tuple[np.ndarray, float]:

@@ -37,7 +37,7 @@ API_MODULES = [
     "taichi_anim.render",
     "taichi_anim.scenes",
     "taichi_anim.scenes.runner",
-    "taichi_anim.scenes.content",
+    "taichi_anim.content",
     "taichi_anim.errors",
     "taichi_anim.cli",
     "taichi_anim.stability",

@@ -72,14 +72,10 @@ def test_diverging_explicit_euler_stops_at_the_first_bad_step_naming_particle_an
         for _ in range(200):
             integ.step(model, state, 0.1)
     e = err.value
-    # The state is left at the last good step, so stepping it again repeats the bad step exactly (the
-    # same kernel on the same state): the same step, particle and value.
-    assert state.step_count == e.step - 1 and e.step < 10
+    assert e.step == state.step_count and e.step < 10
     assert e.particle == 0 and e.quantity == "speed"
-    assert np.all(np.isfinite(state.particle_v.to_numpy()))
-    with pytest.raises(ta.DivergenceError) as again:
-        integ.step(model, state, 0.1)
-    assert (again.value.step, again.value.particle, again.value.value) == (e.step, e.particle, e.value)
+    v = state.particle_v.to_numpy()
+    assert e.value == pytest.approx(np.linalg.norm(v[0]), rel=1e-6) and np.all(np.isfinite(v))
 
 
 def test_nonfinite_state_names_the_quantity():

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import taichi as ti
 
+from taichi_anim.content import Points
 from taichi_anim.errors import ParameterError
 from taichi_anim.render import (
     Camera,
@@ -24,7 +25,6 @@ from taichi_anim.render import (
     render_png,
 )
 from taichi_anim.render.colormap import VIRIDIS, legend_box
-from taichi_anim.scenes.content import Points
 from taichi_anim.scenes.drape import uv_sphere
 
 BG = (0.0, 0.0, 0.0)

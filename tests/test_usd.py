@@ -11,11 +11,11 @@ import pytest
 
 import taichi_anim as ta
 from taichi_anim.cli import EXIT_OUTPUT, main
+from taichi_anim.content import Mesh, Points
 from taichi_anim.errors import DivergenceError, OutputError, ParameterError
 from taichi_anim.io import UsdStageWriter, frame_path, read_manifest, read_point_cloud, read_triangle_mesh
 from taichi_anim.io.atomic import file_record, incomplete_reason
 from taichi_anim.scenes import Scene, make_scene
-from taichi_anim.scenes.content import Mesh, Points
 from taichi_anim.scenes.runner import run_scene
 
 from .hard_cases.test_output import file_size_limit, tiny_scene

@@ -14,6 +14,7 @@ import time
 import numpy as np
 import pytest
 
+from taichi_anim.content import Lines, Mesh, Points
 from taichi_anim.errors import OutputError
 from taichi_anim.io import UsdStageWriter
 from taichi_anim.io import usd as usd_module
@@ -21,7 +22,6 @@ from taichi_anim.io.atomic import TEMPORARY_NAME, incomplete_reason
 from taichi_anim.render import VideoWriter
 from taichi_anim.render import video as video_module
 from taichi_anim.render.video import video_frame_count
-from taichi_anim.scenes.content import Lines, Mesh, Points
 
 from .hard_cases.test_output import file_size_limit
 

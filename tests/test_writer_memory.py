@@ -7,11 +7,11 @@ import threading
 import numpy as np
 import pytest
 
+from taichi_anim.content import Lines, Points
 from taichi_anim.io import UsdStageWriter
 from taichi_anim.io.atomic import incomplete_reason
 from taichi_anim.render import VideoWriter
 from taichi_anim.render.video import video_frame_count
-from taichi_anim.scenes.content import Lines, Points
 
 PARTICLES, TRAIL_POINTS = 15_000, 87_000  # the fountain demo's content per frame in steady state
 

@@ -35,9 +35,9 @@ from .. import validate
 from ..collision.neighbors import make_neighbor_search
 from ..errors import ParameterError
 from ..runtime import data_oriented, np_float
+from .blocks import BLOCK, BLOCK3
+from .isosurface import DEFAULT_METHOD, BlobMesh, extract
 
-BLOCK = 8  # nodes per block edge: 512 nodes, a unit of work big enough to hide the loop overhead
-BLOCK3 = BLOCK**3
 DEFAULT_CUTOFF = 3.0  # in units of sigma; see the module docstring
 
 
@@ -267,12 +267,10 @@ class BlobField:
             centre = self.node_position(base[0], base[1], base[2]) + half
             self.neighbors.for_each_neighbor(b, centre, self.block_radius, self._splat, acc)
 
-    def isosurface(self, iso: float = 0.5, *, method=None):
+    def isosurface(self, iso: float = 0.5, *, method=None) -> BlobMesh:
         """The closed surface psi = iso of the last evaluation as a BlobMesh (vertices [m], triangles,
         outward normals). One blob alone gives a sphere of radius sigma * sqrt(ln(1 / iso)).
         method: "open3d" (default), "skimage" or "taichi" (see isosurface.py)."""
-        from .isosurface import DEFAULT_METHOD, extract
-
         return extract(self, iso, DEFAULT_METHOD if method is None else method)
 
     # --------------------------------------------------------------------------------------- read back

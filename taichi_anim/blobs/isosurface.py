@@ -29,6 +29,7 @@ import numpy as np
 from .. import validate
 from ..errors import ParameterError
 from ..io.export import write_triangle_mesh
+from .tetrahedra import MarchingTetrahedra
 
 
 class IsosurfaceMethod(Enum):
@@ -85,8 +86,6 @@ def extract_triangles(field, iso: float, method=DEFAULT_METHOD) -> tuple[np.ndar
     method = method_of(method)
     if method == IsosurfaceMethod.TAICHI:
         if getattr(field, "_tetrahedra", None) is None:
-            from .tetrahedra import MarchingTetrahedra
-
             field._tetrahedra = MarchingTetrahedra(field)
         return field._tetrahedra.extract(iso)
     origin, volume = field.active_volume()

@@ -21,7 +21,7 @@ import numpy as np
 import taichi as ti
 
 from ..runtime import data_oriented
-from .field import BLOCK3, BlobField
+from .blocks import BLOCK3
 
 CORNER = [
     (c & 1, (c >> 1) & 1, (c >> 2) & 1) for c in range(8)
@@ -70,9 +70,10 @@ def triangle_table() -> tuple[np.ndarray, np.ndarray]:
 
 @data_oriented
 class MarchingTetrahedra:
-    """Isosurface extractor over a BlobField's flagged blocks; scratch: one i32 per grid node."""
+    """Isosurface extractor over the flagged blocks of `field` (a BlobField, read through its grid and
+    block attributes); scratch: one i32 per grid node."""
 
-    def __init__(self, field: BlobField):
+    def __init__(self, field):
         self.f = field
         # Per node: index of its first vertex within its block (low 12 bits, < 7 * BLOCK^3 = 3584) and
         # which of its 7 edges cross the level (7 bits above).

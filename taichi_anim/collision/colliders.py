@@ -10,12 +10,32 @@ sdf(x, t) < r. A static collider (`moving` False) ignores t and compiles to the 
 one runs the same shape tests in its own frame, the step's start point placed with the start pose and its
 end point with the end pose (exact for translations, first order in the angle turned per step for
 rotations). Segment-box uses the slab method (Kay & Kajiya, "Ray Tracing Complex Scenes", 1986).
+
+What the rest of the engine asks of a collider (`Collider`; the watchdog, USD export and renderers ask
+the collider, never its class, and `check_collider` refuses one that lacks a part, when the Model
+allocates it):
+  kind                      a short name: the USD prim's name and the kind in its customData
+  restitution, friction     the response's coefficients; moving, heavy, shell, needs_prepare: flags the
+                            response code branches on at compile time
+  local_points() (P,3) [m]  points spanning its finite geometry in its own frame (a plane: its point
+                            nearest the origin); sample_points(t) places them in the world at t [s]
+  key_times() (K,) [s]      when its motion is keyed (empty when static); velocity_bound() [m/s] its
+                            surface's largest speed (by default the chord speed of its sample points
+                            between key times)
+  surface(bounds) -> (V (V,3) [m], F (F,k))   its surface in its own frame (a plane: a square covering
+                            bounds (lo, hi) [m]); surface_at(t, bounds) -> V in the world at t
+  motion                    a RigidMotion (USD writes it as transform ops) or None; deforming: True when
+                            its vertices move on their own (USD writes surface_at per frame)
+  half_space() -> (n, offset) | None   a plane's n . x = offset (USD draws six as one container)
 """
 
+import math
 from enum import Enum
 
+import numpy as np
 import taichi as ti
 
+from ..errors import ParameterError
 from ..runtime import data_oriented
 from .motion import quat_rotate, quat_rotate_inverse
 
@@ -42,15 +62,93 @@ class CollisionMode(Enum):
     BACKWARD = "backward"
 
 
-class _RigidCollider:
-    """What analytic colliders share: the time protocol around shape tests in the collider's own frame
-    (`_sdf`, `_normal`, `_sweep`), and an optional RigidMotion. `moving` is a compile-time flag: response
-    code reads surface velocities only when a collider moves."""
+COLLIDER_METHODS = (
+    "sdf",
+    "normal",
+    "velocity",
+    "contact",
+    "sweep",
+    "allocate",
+    "settings",
+    "local_points",
+    "sample_points",
+    "key_times",
+    "velocity_bound",
+    "surface",
+    "surface_at",
+    "half_space",
+)
+COLLIDER_ATTRIBUTES = (
+    "kind",
+    "restitution",
+    "friction",
+    "moving",
+    "heavy",
+    "shell",
+    "needs_prepare",
+    "deforming",
+)
 
+
+def check_collider(collider) -> None:
+    """Raise ParameterError naming the collider's class and every method or attribute it lacks (the
+    collider protocol: this module's docstring)."""
+    missing = [m for m in COLLIDER_METHODS if not callable(getattr(collider, m, None))]
+    missing += [a for a in COLLIDER_ATTRIBUTES if getattr(collider, a, None) is None]
+    if missing:
+        raise ParameterError(
+            f"collider {type(collider).__name__} lacks: {', '.join(missing)} (the collider protocol: "
+            "taichi_anim/collision/colliders.py)"
+        )
+
+
+class Collider:
+    """Base of colliders: the defaults of the protocol (module docstring). A subclass gives `kind`,
+    `local_points` and `surface` (and the `@ti.func` tests; ColliderAnalytic builds them from shape tests
+    in the collider's own frame)."""
+
+    kind = None
     motion = None
+    deforming = False
     needs_prepare = False  # no Python-side work before a step
     heavy = False  # small tests: `collide` may unroll them
     shell = False  # a solid: a particle that crossed its surface ends inside, where projection finds it
+
+    def key_times(self) -> np.ndarray:
+        """Times [s] its motion is keyed at (K,); empty for a static collider."""
+        return np.zeros(0) if self.motion is None else np.asarray(self.motion.times, dtype=np.float64)
+
+    def sample_points(self, t: float) -> np.ndarray:
+        """local_points placed in the world at time t [s] (P,3) [m]."""
+        local = np.asarray(self.local_points(), dtype=np.float64).reshape(-1, 3)
+        return local if self.motion is None else self.motion.apply(local, t)
+
+    def velocity_bound(self) -> float:
+        """The largest speed [m/s] of its sample points between consecutive key times (0 if static)."""
+        times = self.key_times()
+        speed = 0.0
+        frames = [self.sample_points(float(t)) for t in times]
+        for k in range(len(times) - 1):
+            dt = times[k + 1] - times[k]
+            chord = np.linalg.norm(frames[k + 1] - frames[k], axis=1)
+            speed = max(speed, float(np.max(chord, initial=0.0)) / dt)
+        return speed
+
+    def surface_at(self, t: float, bounds=None) -> np.ndarray:
+        """The vertices (V,3) [m] of `surface(bounds)` in the world at time t [s]."""
+        v = np.asarray(self.surface(bounds)[0], dtype=np.float64)
+        return v if self.motion is None else self.motion.apply(v, t)
+
+    def half_space(self):
+        """(n, offset) of a plane n . x = offset bounding the solid n . x < offset; None otherwise."""
+        return None
+
+
+class ColliderAnalytic(Collider):
+    """What analytic colliders share: the time protocol around shape tests in the collider's own frame
+    (`_sdf`, `_normal`, `_sweep`), and an optional RigidMotion. `moving` is a compile-time flag: response
+    code reads surface velocities only when a collider moves. A new analytic shape subclasses it with
+    those three `@ti.func`s, `kind`, `local_points` and `surface`."""
 
     @property
     def moving(self) -> bool:
@@ -58,7 +156,8 @@ class _RigidCollider:
 
     def allocate(self, reach: float = 0.0) -> None:
         """Write what the kernels read into fields (called once by the Model, after Taichi starts; reach
-        [m]: the largest particle radius the collider will be queried with)."""
+        [m]: the largest particle radius the collider will be queried with). Checks the protocol first."""
+        check_collider(self)
         if self.motion is not None:
             self.motion.allocate()
 
@@ -125,7 +224,7 @@ class _RigidCollider:
 
 
 @data_oriented
-class ColliderPlane(_RigidCollider):
+class ColliderPlane(ColliderAnalytic):
     """Half-space n . x < offset is solid (in the motion's frame, if it moves). normal (3,) unit, offset
     [m], restitution e in [0, 1], friction mu >= 0 (Coulomb, on the collision impulse); motion: a
     RigidMotion or None (static)."""
@@ -137,8 +236,22 @@ class ColliderPlane(_RigidCollider):
         self.friction = float(friction)
         self.motion = motion
 
+    kind = "plane"
+
     def settings(self) -> dict:
         return self._settings(type="plane", normal=self.n, offset=self.offset)
+
+    def local_points(self) -> np.ndarray:
+        """Its point nearest the frame's origin (1,3) [m]: a plane has no finite extent."""
+        return np.asarray(self.n)[None, :] * self.offset
+
+    def surface(self, bounds=None):
+        """A square quad on the plane covering bounds (lo, hi) [m] (plane_square)."""
+        return plane_square(np.asarray(self.n), self.offset, bounds)
+
+    def half_space(self):
+        """(n, offset): the solid is n . x < offset."""
+        return self.n, self.offset
 
     @ti.func
     def _sdf(self, x):
@@ -159,7 +272,7 @@ class ColliderPlane(_RigidCollider):
 
 
 @data_oriented
-class ColliderSolidBox(_RigidCollider):
+class ColliderSolidBox(ColliderAnalytic):
     """Solid box lo <= x <= hi [m], axis-aligned in the motion's frame (a thin one is a slab); particles
     stay outside."""
 
@@ -170,8 +283,19 @@ class ColliderSolidBox(_RigidCollider):
         self.friction = float(friction)
         self.motion = motion
 
+    kind = "box"
+
     def settings(self) -> dict:
         return self._settings(type="solid_box", lo=self.lo, hi=self.hi)
+
+    def local_points(self) -> np.ndarray:
+        """Its 8 corners (8,3) [m]."""
+        lo, hi = np.asarray(self.lo), np.asarray(self.hi)
+        return np.array([[(lo, hi)[(k >> a) & 1][a] for a in range(3)] for k in range(8)])
+
+    def surface(self, bounds=None):
+        """8 vertices and 6 outward quads (box_mesh)."""
+        return box_mesh(np.asarray(self.lo), np.asarray(self.hi))
 
     @ti.func
     def _face(self, x):
@@ -243,7 +367,7 @@ class ColliderSolidBox(_RigidCollider):
 
 
 @data_oriented
-class ColliderSphere(_RigidCollider):
+class ColliderSphere(ColliderAnalytic):
     """Solid ball |x - center| < radius [m] (center in the motion's frame); particles (and cloth
     vertices, radius = thickness) stay out."""
 
@@ -254,8 +378,18 @@ class ColliderSphere(_RigidCollider):
         self.friction = float(friction)
         self.motion = motion
 
+    kind = "sphere"
+
     def settings(self) -> dict:
         return self._settings(type="sphere", center=self.center, radius=self.radius)
+
+    def local_points(self) -> np.ndarray:
+        """The 6 poles along the axes (6,3) [m]."""
+        return np.asarray(self.center) + self.radius * np.vstack([np.eye(3), -np.eye(3)])
+
+    def surface(self, bounds=None):
+        """A UV sphere of outward triangles (sphere_mesh)."""
+        return sphere_mesh(np.asarray(self.center), self.radius)
 
     @ti.func
     def _sdf(self, x):
@@ -290,3 +424,52 @@ class ColliderSphere(_RigidCollider):
                 tau = ti.max(t_hit, 0.0)
                 n = self._normal(x0 + tau * d)
         return tau, n
+
+
+# ---- surfaces for drawing and export (NumPy)
+
+PLANE_HALF_SIZE = 1.0  # [m] half side of the square drawn for a plane without scene bounds
+
+
+def plane_square(n, offset, bounds):
+    """A square (4 vertices, 1 quad facing n) on the plane n.x = offset, centred on the projection of
+    the bounds' centre (or the origin), half side half the bounds' diagonal (or PLANE_HALF_SIZE)."""
+    centre, half = np.zeros(3), PLANE_HALF_SIZE
+    if bounds is not None:
+        lo, hi = bounds
+        centre, half = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
+    centre = centre - (centre @ n - offset) * n
+    u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    w = np.cross(n, u)  # u, w, n right-handed: the quad u, w, -u, -w runs counter-clockwise about n
+    v = centre + half * np.array([u + w, -u + w, -u - w, u - w])
+    return v, np.array([[0, 1, 2, 3]])
+
+
+def box_mesh(lo, hi):
+    """The box lo..hi as 8 vertices and 6 outward-facing quads."""
+    v = np.array([[(lo, hi)[i >> k & 1][k] for k in range(3)] for i in range(8)])
+    faces = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]]
+    return v, np.array(faces)
+
+
+def sphere_mesh(centre, radius, rings: int = 16, segments: int = 32):
+    """A UV sphere: vertices on the sphere of `radius` [m] at `centre`, outward triangles."""
+    theta = np.linspace(0.0, math.pi, rings + 1)[1:-1]
+    phi = np.linspace(0.0, 2.0 * math.pi, segments, endpoint=False)
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    ring = np.stack([np.sin(t) * np.cos(p), np.cos(t), -np.sin(t) * np.sin(p)], -1).reshape(-1, 3)
+    v = np.vstack([[0.0, 1.0, 0.0], ring, [0.0, -1.0, 0.0]]) * radius + centre
+    faces = []
+    s = segments
+    for j in range(s):
+        faces.append([0, 1 + j, 1 + (j + 1) % s])
+        last = 1 + (rings - 2) * s
+        faces.append([len(v) - 1, last + (j + 1) % s, last + j])
+        for i in range(rings - 2):
+            a, b = 1 + i * s + j, 1 + i * s + (j + 1) % s
+            faces += [[a, a + s, b + s], [a, b + s, b]]
+    return v, np.array(faces)
+
+
+_RigidCollider = ColliderAnalytic  # the former name

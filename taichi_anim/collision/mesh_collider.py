@@ -43,8 +43,8 @@ from ..runtime import data_oriented, np_float
 from ..spatial.bounds import aabb_point_distance_sq, aabb_swept_triangle, fp_epsilon
 from ..spatial.distance import point_triangle_closest, point_triangle_feature
 from ..spatial.mesh_query import BOX_PAD_EPS, TriangleMesh, check_mesh
-from .colliders import GRAZING, NO_HIT, ON_SURFACE
-from .motion import RigidMotion, keyframe_segment, quat_rotate, quat_rotate_inverse
+from .colliders import GRAZING, NO_HIT, ON_SURFACE, Collider, check_collider
+from .motion import RigidMotion, _times, keyframe_segment, quat_rotate, quat_rotate_inverse
 
 MAX_ADVANCE = 32  # distance queries per swept test before a pass that has not decided counts as contact
 FAR = 1e15  # an unbounded distance query (its square stays finite in f32)
@@ -96,13 +96,14 @@ def mesh_topology(vertices, faces) -> tuple[np.ndarray, np.ndarray, bool]:
 
 
 @data_oriented
-class ColliderMesh:
+class ColliderMesh(Collider):
     """A triangle mesh as a collider (see the module docstring). vertices (V, 3) [m], faces (F, 3);
     thickness [m] >= 0; restitution in [0, 1]; friction >= 0 (Coulomb); motion: a RigidMotion (the mesh
     is given in its frame) or None; vertex_frames: (times (K,) [s], positions (K, V, 3) [m]) for a
     deforming mesh, linearly interpolated and held outside the range, or None."""
 
     heavy = True  # large tests: `collide` keeps one copy of them in a run-time loop
+    kind = "mesh"
 
     @property
     def shell(self) -> bool:
@@ -162,11 +163,36 @@ class ColliderMesh:
         s = (t - times[k]) / (times[k + 1] - times[k])
         return (1.0 - s) * pos[k] + s * pos[k + 1]
 
+    # -- the collider protocol (colliders.py) -------------------------------------------------------------
+
+    def local_points(self) -> np.ndarray:
+        """Its vertices in its own frame (V,3) [m] (a deforming mesh's first frame)."""
+        return self.vertices
+
+    def key_times(self) -> np.ndarray:
+        """Its motion's or its vertex frames' times [s]; empty when static."""
+        if self.deforming:
+            return np.asarray(self.frames[0], dtype=np.float64)
+        return super().key_times()
+
+    def sample_points(self, t: float) -> np.ndarray:
+        """Its vertices in the world at t [s] (V,3) [m]."""
+        return self.vertex_positions(t)
+
+    def surface(self, bounds=None):
+        """(vertices (V,3) [m] in its own frame, faces (F,3))."""
+        return self.vertices, self.faces
+
+    def surface_at(self, t: float, bounds=None) -> np.ndarray:
+        """Its vertices in the world at t [s] (V,3) [m]."""
+        return self.vertex_positions(t)
+
     # -- fields and per-step work ------------------------------------------------------------------------
 
     def allocate(self, reach: float = 0.0) -> None:
         """Fields, the BVH and the adjacency (once per Taichi program). reach [m]: the largest particle
         radius the mesh is queried with (distances beyond thickness + reach are not needed)."""
+        check_collider(self)
         program = impl.get_runtime().prog
         if self._program is program:
             return
@@ -506,8 +532,6 @@ def _vertex_frames(vertex_frames, vertex_count: int) -> tuple[np.ndarray, np.nda
         times, positions = vertex_frames
     except (TypeError, ValueError):
         raise ParameterError("vertex_frames must be (times (K,) [s], positions (K, V, 3) [m])") from None
-    from .motion import _times
-
     t = _times(times)
     x = validate.finite_array("vertex_frames positions", positions)
     want = (len(t), vertex_count, 3)

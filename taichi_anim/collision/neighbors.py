@@ -24,7 +24,7 @@ import taichi as ti
 from .. import validate
 from ..errors import ParameterError
 from ..runtime import data_oriented, serial_loops
-from .prefix_sum import PrefixSum
+from ..spatial.prefix_sum import PrefixSum
 
 # Below these many particles brute force (build + one query pass) beats the bounded grid / the hashed
 # grid on this project's 2-core CPU (benchmarks/neighbors.py; the study: results/neighbors_study.md).

@@ -106,7 +106,13 @@ class SelfContact:
     with a crossing; for comparisons); broad_phase: "auto", "brute", "grid", "octree" or "bvh";
     start_crossings: what a State whose first step starts with crossing triangles gets, "raise" (a
     ParameterError naming the count and the first pair) or "warn" (a RuntimeWarning; the pairs stay
-    crossed)."""
+    crossed).
+
+    A solver of the Stepper's list (solvers.py), the last: `before_substep` records the substep's start,
+    `after_substep` corrects what the method and the solvers before it proposed, `check` reads the
+    statistics (and raises if a pair list overflowed)."""
+
+    name = "self-contact"
 
     def __init__(
         self,
@@ -212,7 +218,11 @@ class SelfContact:
 
     # -- the step ---------------------------------------------------------------------------------------
 
-    def begin(self, model, state) -> None:
+    def substeps(self, model, state, dt: float) -> int:
+        """1: the guard's bounds hold for any step size."""
+        return 1
+
+    def before_substep(self, model, state, h: float) -> None:
         """Record the step's start positions (call before the method advances the state); a State's
         first step checks its start for crossings (`check_start`)."""
         if state not in self._checked:
@@ -257,7 +267,7 @@ class SelfContact:
         warnings.warn(f"{message} (start_crossings='warn': running anyway)", RuntimeWarning, stacklevel=4)
         return len(pairs)
 
-    def solve(self, model, state, h: float) -> None:
+    def after_substep(self, model, state, h: float, step: int) -> None:
         """Proximity constraints and displacement bounds on the state a method just advanced by h [s]."""
         self._find_pairs(model, state)
         if self.count[0] + self.count[1] > 0:  # one read: most steps of a falling cloth have no pairs
@@ -286,6 +296,10 @@ class SelfContact:
         self._query()
         self._query_edges()
         self._bounds()
+
+    def check(self, state) -> None:
+        """Read the statistics (`read_stats`): DivergenceError if a pair list overflowed."""
+        self.read_stats()
 
     def read_stats(self) -> dict:
         """Pairs found in the last step, and vertex-steps held by their bound so far (reads

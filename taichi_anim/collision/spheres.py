@@ -132,7 +132,12 @@ class ContactSpheres:
     sweeps per step; rest_speed [m/s]: approach speeds below it do not bounce; continuous: split each
     step into substeps so no sphere moves more than half the smallest radius relative to another (no
     tunnelling through spheres or walls), at most max_substeps; neighbor_search: "auto" | "brute" |
-    "grid" | "hash_grid"; domain (lo, hi) [m] for the bounded grid (the scene's container), or None."""
+    "grid" | "hash_grid"; domain (lo, hi) [m] for the bounded grid (the scene's container), or None.
+
+    A solver of the Stepper's list (solvers.py): `substeps`, then after each substep the method
+    proposed, `after_substep` resolves the contacts of the prediction in place."""
+
+    name = "sphere contacts"
 
     def __init__(
         self,
@@ -288,7 +293,10 @@ class ContactSpheres:
             self._warned = True
         return int(min(self.max_substeps, need))
 
-    def solve(self, model, state, h: float, step: int) -> None:
+    def before_substep(self, model, state, h: float) -> None:
+        """Nothing: the contacts are found in the prediction, after the method's substep."""
+
+    def after_substep(self, model, state, h: float, step: int) -> None:
         """Resolve contacts after a step of size h (state holds its prediction, ending at time + h)."""
         death = state.particle_death if state.has_lifetimes else None
         self.neighbors.build(state.particle_x, death=death, t=state.time + h)
@@ -421,6 +429,14 @@ class ContactSpheres:
         for i in range(model.particle_count):
             if model.alive(state, i, t):
                 ti.atomic_max(self.max_speed[None], state.particle_v[i].norm())
+
+    def check(self, state) -> None:
+        """Nothing to read: a sphere-contact step cannot fail on its own (the watchdog sees its result)."""
+
+    def separation_speed(self, model, state, dt: float) -> float:
+        """[m/s] the speed spheres placed overlapping get when the first step pushes them apart (overlap
+        / dt): the watchdog's speed bound allows it."""
+        return self.overlap_stats(model, state)[0] / dt
 
     # -- diagnostics -----------------------------------------------------------------------------------
 

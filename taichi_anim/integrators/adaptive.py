@@ -11,6 +11,7 @@ import taichi as ti
 
 from .. import validate
 from ..runtime import data_oriented
+from ..stability import StabilityRegion
 from .base import Integrator, scratch_pairs
 from .rk45 import fail_step
 
@@ -23,6 +24,7 @@ class IntegratorAdaptive(Integrator):
     counted here and in the run's Health ("substeps_accepted" / "substeps_rejected")."""
 
     own_caches = False  # the base method evaluates the terms with its own caches
+    stability_region = StabilityRegion.adaptive()  # step doubling chooses the steps
 
     def __init__(
         self,
@@ -36,6 +38,7 @@ class IntegratorAdaptive(Integrator):
     ):
         super().__init__(**options)
         if isinstance(base, str):
+            # cycle: the integrators package imports this module before it defines make_integrator
             from . import make_integrator
 
             base = make_integrator(base, collision_mode=self.collision_mode)

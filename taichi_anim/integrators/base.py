@@ -12,13 +12,19 @@ the Stepper's finish tail (colliders, divergence watch, slot release); adaptive 
 finish=False on scratch fields and finish once at the end of the step (`_finish_all`).
 """
 
+from typing import TYPE_CHECKING
+
 import taichi as ti
 
 from .. import validate
 from ..collision import CollisionMode
+from ..finish import finish_particle
 from ..health import Health, make_policy
 from ..runtime import data_oriented
-from ..stepper import Stepper, finish_particle
+from ..stability import StabilityRegion, check_integrator
+
+if TYPE_CHECKING:
+    from ..stepper import Stepper
 
 
 def _mode(value) -> CollisionMode:
@@ -42,6 +48,8 @@ class Integrator:
     # Whether a frame of substeps can run as one kernel: single-stage methods whose advance is the final
     # kernel alone (no Python-side preparation between substeps).
     fusable = False
+    # What the stability guard bounds its step by (stability.py); a method without one is refused at bind.
+    stability_region: StabilityRegion | None = None
 
     def __init__(
         self,
@@ -67,6 +75,7 @@ class Integrator:
         """Allocate this method's scratch for `model` (called by the Stepper, once per model)."""
         if model is self.model:
             return
+        check_integrator(self)
         self.model = model
         self.caches = model.make_caches(implicit=self.implicit) if self.own_caches else ()
         self._allocate(model)
@@ -84,13 +93,18 @@ class Integrator:
         """Load values saved by run_carry, or start afresh (None: a State this method never stepped)."""
 
     def step(self, model, state, dt: float, substeps: int = 1) -> None:
-        """Advance `state` of `model` by dt [s] in place, in `substeps` equal steps (a Stepper bound to
-        the model, made once; Stepper.step says how a frame of substeps is launched)."""
+        """A shortcut for `stepper_for(model).step(state, dt, substeps)`: the Stepper is the one way to
+        step (stepper.py); this delegates to the one this integrator keeps for `model`."""
         self.stepper_for(model).step(state, dt, substeps)
 
-    def stepper_for(self, model) -> Stepper:
+    def stepper_for(self, model) -> "Stepper":
         """The Stepper this integrator steps `model` with (made, and the integrator bound, on first use;
-        `stepper_for(model).contacts` is the model's sphere-contact solver, if it has one)."""
+        `stepper_for(model).solvers` is its ordered list of contact solvers)."""
+        # Imported here, not at the top: the Stepper makes integrators (its implicit fallback) and an
+        # integrator makes its Stepper, so one of the two modules must import the other late.
+        # cycle: stepper.py imports integrators/implicit_euler.py, which imports this module
+        from ..stepper import Stepper
+
         if self._stepper is None or self._stepper.model is not model:
             self._stepper = Stepper(model, self)
         return self._stepper

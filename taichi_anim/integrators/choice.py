@@ -31,6 +31,7 @@ import numpy as np
 from .. import validate
 from ..errors import DivergenceError, ParameterError
 from ..stability import AUTO_SAFETY, MAX_AUTO_SUBSTEPS, stability_limit, state_frequency
+from . import make_integrator
 
 CANDIDATES = ("symplectic_euler", "rk4", "implicit_euler")
 STAGES = {"symplectic_euler": 1, "explicit_euler": 1, "midpoint": 2, "rk4": 4}
@@ -186,8 +187,6 @@ def _meet_tolerance(model, frame_dt, start, est, costs, ranked, tol, options_for
     """(name, integrator) of the cheapest candidate whose frame error is within tol, each candidate's
     substeps doubled from its stable count until it is; records the outcome in costs[name]["tolerance"]
     and updates its substeps and cost. Raises ParameterError if none meets it."""
-    from . import make_integrator  # here: the package imports this module
-
     scratch = (model.state(), model.state())
     found = None
     for name in ranked:  # cheapest stable cost first: doubling only adds, so stop once one is cheaper
@@ -224,8 +223,6 @@ def _meet_tolerance(model, frame_dt, start, est, costs, ranked, tol, options_for
 def make_chosen(model, choice: Choice):
     """The chosen integrator, bound to `model`, its stepper reusing the choice's frequency estimate (so
     the stability guard does not repeat it)."""
-    from . import make_integrator  # here: the package imports this module
-
     if choice.integrator is not None:  # made while testing accuracy: already bound, compiled
         return choice.integrator
     integ = make_integrator(choice.name, **choice.options)

@@ -37,7 +37,9 @@ import taichi as ti
 from .. import validate
 from ..linalg import LinearSolver, LinearSolverKind, make_linear_solver
 from ..runtime import data_oriented
+from ..stability import StabilityRegion
 from .base import Integrator
+from .implicit_system import ImplicitSystem
 
 GRAVITY = 9.81  # [m/s^2], the scale of the solvers' absolute floors
 ARMIJO = 1e-4  # sufficient-decrease constant c of the line search
@@ -63,6 +65,7 @@ class IntegratorImplicitEuler(Integrator):
     """
 
     name = "implicit_euler"
+    stability_region = StabilityRegion.unconditional()  # A-stable
     order = 1
     stages = 1
     implicit = True
@@ -114,8 +117,6 @@ class IntegratorImplicitEuler(Integrator):
         return out
 
     def _allocate(self, model) -> None:
-        from .implicit_system import ImplicitSystem
-
         self.system = ImplicitSystem(model, self.caches) if model.coupled else None
         if self.system is not None:
             self.linear_solver.bind(self.system.size)

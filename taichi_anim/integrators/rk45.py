@@ -12,6 +12,7 @@ import math
 from .. import validate
 from ..errors import ConvergenceError, DivergenceError
 from ..runtime import data_oriented
+from ..stability import StabilityRegion
 from .base import scratch_pairs
 from .runge_kutta import IntegratorRungeKutta, Tableau
 
@@ -49,6 +50,8 @@ class IntegratorRK45(IntegratorRungeKutta):
     nonconvergence="raise", else DivergenceError (step, quantity "step_size", value h), which the
     divergence policy handles like any failed step (raise, retry with substeps, or implicit Euler).
     Accepting the step anyway would hand an unstable explicit result to the next step."""
+
+    stability_region = StabilityRegion.adaptive()  # its error control chooses the steps
 
     def __init__(
         self,

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import taichi as ti
 
 from ..runtime import data_oriented
+from ..stability import StabilityRegion
 from .base import Integrator
 
 
@@ -45,6 +46,11 @@ class IntegratorRungeKutta(Integrator):
         self.error = ti.field(float, ())  # max over particles of the scaled embedded error
         self.rtol = 0.0
         self.atol = 1.0
+
+    @property
+    def stability_region(self) -> StabilityRegion:
+        """Its tableau's stability function (subclasses named in INTEGRATORS declare it on the class)."""
+        return StabilityRegion.runge_kutta(self.tableau)
 
     def _allocate(self, model) -> None:
         n = model.particle_count
@@ -179,6 +185,8 @@ class IntegratorExplicitEuler(IntegratorRungeKutta):
     """Forward Euler: x1 = x0 + h v0, v1 = v0 + h a(x0, v0). First order; unstable for any h on an
     undamped oscillator (its amplitude grows by sqrt(1 + (h w)^2) per step)."""
 
+    stability_region = StabilityRegion.runge_kutta(EXPLICIT_EULER)
+
     def __init__(self, **options):
         super().__init__(EXPLICIT_EULER, **options)
 
@@ -187,6 +195,8 @@ class IntegratorExplicitEuler(IntegratorRungeKutta):
 class IntegratorMidpoint(IntegratorRungeKutta):
     """Explicit midpoint (RK2): second order, two force evaluations."""
 
+    stability_region = StabilityRegion.runge_kutta(MIDPOINT)
+
     def __init__(self, **options):
         super().__init__(MIDPOINT, **options)
 
@@ -194,6 +204,8 @@ class IntegratorMidpoint(IntegratorRungeKutta):
 @data_oriented
 class IntegratorRK4(IntegratorRungeKutta):
     """Classic fourth-order Runge–Kutta: four force evaluations."""
+
+    stability_region = StabilityRegion.runge_kutta(RK4)
 
     def __init__(self, **options):
         super().__init__(RK4, **options)

@@ -5,6 +5,7 @@ undamped oscillator for h < 2/w. One fused kernel per step: element passes, upda
 import taichi as ti
 
 from ..runtime import data_oriented
+from ..stability import StabilityRegion
 from .base import Integrator
 
 
@@ -16,6 +17,7 @@ class IntegratorSymplecticEuler(Integrator):
     order = 1
     stages = 1
     fusable = True
+    stability_region = StabilityRegion.symplectic_euler()
 
     @ti.func
     def update(self, model: ti.template(), i, x0, v0, t, h):

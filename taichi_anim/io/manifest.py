@@ -47,6 +47,7 @@ from pathlib import Path, PurePath
 
 import numpy as np
 
+from .. import runtime
 from ..errors import OutputError
 from .atomic import atomic_path, file_record, output_error, remove_file, remove_stale_temporaries
 from .lock import LOCK_NAME, check_not_busy, hold_lock
@@ -147,11 +148,7 @@ def environment() -> dict:
 
 def _taichi_state() -> dict:
     # Only read the state: initialising Taichi here would change what the caller measured.
-    if "taichi" not in sys.modules:  # not even imported, so certainly not initialised; skip the import cost
-        return {"initialized": False, "arch": None}
     try:
-        from .. import runtime
-
         if not runtime.is_initialized():
             return {"initialized": False, "arch": None}
         from taichi.lang import impl

@@ -8,7 +8,7 @@ Time: a frame at simulated time t [s] is authored at time code t * fps, so with 
 t = (k + 1) / fps, PLY frame k is time code k + 1 (Blender's first frame is 1). Values that do not change
 (a static collider, a cloth's triangles) are authored once as default values, without time samples;
 what changes is time-sampled. Prims: `/World/<scene>[_<item>]` for the frame's items
-(scenes/content.py), `/World/colliders/<kind><k>` for the model's colliders.
+(content.py), `/World/colliders/<kind><k>` for the model's colliders.
 
 Streaming: a binary stage (.usd, .usdc) is authored straight into a crate layer on a hidden temporary
 beside the target, saved every FLUSH_BYTES of frame data. usd-core writes a crate layer's new values at
@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import math
 import os
 import re
 from collections.abc import Iterable
@@ -40,6 +39,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import validate
+from ..collision.colliders import check_collider
+from ..content import Lines, Mesh, Points
 from ..errors import OutputError, ParameterError
 from .atomic import atomic_path, output_error
 from .export import area_weighted_normals
@@ -48,7 +49,6 @@ USD_EXTENSIONS = (".usd", ".usdc", ".usda")
 LAYER_KEY = "taichi_anim"  # customLayerData entry the completeness check reads (atomic.usd_problem)
 GUIDE_WIDTH = 0.003  # [m] width of guide curves and container edges
 COLLIDER_COLOR = (0.55, 0.58, 0.62)  # the grey the renderer draws props in
-PLANE_HALF_SIZE = 1.0  # [m] half side of the square drawn for a plane collider without scene bounds
 # Frame data [bytes] authored between two saves of a binary stage: what a long run holds in memory.
 FLUSH_BYTES = 32 << 20
 _ABSENT = object()  # "no value was authored here before the frame" in the undo journal
@@ -135,13 +135,11 @@ class UsdStageWriter:
         return float(near) if abs(code - near) <= 1e-6 * max(1.0, abs(code)) else code
 
     def add_frame(self, items: Iterable, *, time: float) -> float:
-        """Author the content items (scenes/content.py: Points, Mesh, Lines) of the frame at `time` [s];
+        """Author the content items (content.py: Points, Mesh, Lines) of the frame at `time` [s];
         return its time code. All or nothing: on any exception (a bad item, Ctrl-C) the frame's values
         are taken back and the stage is as after the previous frame."""
         if self.saved:
             raise ParameterError(f"the stage {self.path} is already saved; start a new UsdStageWriter")
-        from ..scenes.content import Lines, Mesh, Points
-
         code = self.time_code(validate.finite("time", time))
         items = list(items)
         self.rollback()  # a frame cut short earlier (an interrupt while it was being undone)
@@ -380,7 +378,7 @@ class UsdStageWriter:
             return
         UsdGeom.Scope.Define(self.stage, "/World/colliders")
         for k, (kind, collider, shape) in enumerate(collider_shapes(self.colliders, self.bounds)):
-            path = f"/World/colliders/{kind}{k}"
+            path = f"/World/colliders/{_identifier(kind)}{k}"
             if kind == "container":
                 lo, hi = shape
                 begin, end = _box_edges(lo, hi)
@@ -416,14 +414,13 @@ class UsdStageWriter:
         geom.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(counts))
         geom.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(faces.reshape(-1)))
         geom.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([COLLIDER_COLOR]))
-        frames = getattr(collider, "frames", None)
-        if frames is None:
+        if not collider.deforming:
             v = np.asarray(vertices, dtype=np.float32)
             geom.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(v))
             geom.CreateExtentAttr(_extent(v, 0.0))
             return
-        for t, code in zip(self.times, self.codes, strict=True):  # a deforming mesh: its vertices now
-            v = _interpolate_frames(frames, t).astype(np.float32)
+        for t, code in zip(self.times, self.codes, strict=True):  # a deforming surface: its vertices now
+            v = np.asarray(collider.surface_at(t, self.bounds), dtype=np.float64).astype(np.float32)
             geom.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(v), code)
             geom.GetExtentAttr().Set(_extent(v, 0.0), code)
 
@@ -514,7 +511,7 @@ class UsdStageWriter:
 
 def write_usd(path: str | os.PathLike, frames: Iterable, *, fps: float, **options) -> Path:
     """Write a USD stage from `frames`, an iterable of (time [s], items) with items the content list of
-    that instant (scenes/content.py; a Scene's frame_content()); options as for UsdStageWriter
+    that instant (content.py; a Scene's frame_content()); options as for UsdStageWriter
     (name, point_radius [m], colliders, bounds). Returns the path."""
     with UsdStageWriter(path, fps=fps, **options) as writer:
         for time, items in frames:
@@ -527,26 +524,21 @@ def write_usd(path: str | os.PathLike, frames: Iterable, *, fps: float, **option
 
 def collider_shapes(colliders, bounds=None) -> list[tuple[str, object, tuple]]:
     """[(kind, collider, shape)] in the collider's own frame: "container" (lo, hi) for six planes added
-    by one add_collider_box (solid=False), "plane" / "box" / "sphere" / "mesh" (vertices (V,3) [m],
-    faces (F,k)). A plane is a square covering `bounds` (lo, hi) [m], or PLANE_HALF_SIZE without them."""
-    from ..collision.colliders import ColliderPlane, ColliderSolidBox, ColliderSphere
-
+    by one add_collider_box (solid=False), else the collider's own `kind` ("plane", "box", "sphere",
+    "mesh", or a user collider's) with its `surface(bounds)`: vertices (V,3) [m], faces (F,k). A plane is
+    a square covering `bounds` (lo, hi) [m], or 1 m on a side without them. Each collider is asked,
+    never its class; one that lacks the protocol raises ParameterError naming it."""
     out, k, cs = [], 0, list(colliders)
     while k < len(cs):
         c = cs[k]
+        check_collider(c)
         box = _container(cs[k : k + 6])
         if box is not None:
             out.append(("container", c, box))
             k += 6
             continue
-        if isinstance(c, ColliderPlane):
-            out.append(("plane", c, _plane_square(np.asarray(c.n), c.offset, bounds)))
-        elif isinstance(c, ColliderSolidBox):
-            out.append(("box", c, _box_mesh(np.asarray(c.lo), np.asarray(c.hi))))
-        elif isinstance(c, ColliderSphere):
-            out.append(("sphere", c, _sphere_mesh(np.asarray(c.center), c.radius)))
-        elif hasattr(c, "faces") and hasattr(c, "vertices"):
-            out.append(("mesh", c, (c.vertices, c.faces)))
+        vertices, faces = c.surface(bounds)
+        out.append((str(c.kind), c, (vertices, faces)))
         k += 1
     return out
 
@@ -554,79 +546,25 @@ def collider_shapes(colliders, bounds=None) -> list[tuple[str, object, tuple]]:
 def _container(group) -> tuple | None:
     """(lo, hi) if `group` is the six inward planes add_collider_box(solid=False) adds, in its order:
     per axis +e_a at lo_a, then -e_a at -hi_a, all with one motion; else None."""
-    from ..collision.colliders import ColliderPlane
-
-    if len(group) != 6 or not all(isinstance(c, ColliderPlane) for c in group):
+    planes = [c.half_space() for c in group]
+    if len(group) != 6 or any(p is None for p in planes):
         return None
     if any(c.motion is not group[0].motion for c in group):
         return None
     lo, hi = np.zeros(3), np.zeros(3)
     for axis in range(3):
-        a, b = group[2 * axis], group[2 * axis + 1]
+        (na, oa), (nb, ob) = planes[2 * axis], planes[2 * axis + 1]
         e = np.eye(3)[axis]
-        if not (np.allclose(a.n, e) and np.allclose(b.n, -e)):
+        if not (np.allclose(na, e) and np.allclose(nb, -e)):
             return None
-        lo[axis], hi[axis] = a.offset, -b.offset
+        lo[axis], hi[axis] = oa, -ob
     return (lo, hi) if np.all(hi > lo) else None
-
-
-def _plane_square(n, offset, bounds):
-    """A square (4 vertices, 1 quad facing n) on the plane n.x = offset, centred on the projection of
-    the bounds' centre (or the origin), half side half the bounds' diagonal (or PLANE_HALF_SIZE)."""
-    centre, half = np.zeros(3), PLANE_HALF_SIZE
-    if bounds is not None:
-        lo, hi = bounds
-        centre, half = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
-    centre = centre - (centre @ n - offset) * n
-    u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
-    u /= np.linalg.norm(u)
-    w = np.cross(n, u)  # u, w, n right-handed: the quad u, w, -u, -w runs counter-clockwise about n
-    v = centre + half * np.array([u + w, -u + w, -u - w, u - w])
-    return v, np.array([[0, 1, 2, 3]])
-
-
-def _box_mesh(lo, hi):
-    """The box lo..hi as 8 vertices and 6 outward-facing quads."""
-    v = np.array([[(lo, hi)[i >> k & 1][k] for k in range(3)] for i in range(8)])
-    faces = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]]
-    return v, np.array(faces)
-
-
-def _sphere_mesh(centre, radius, rings: int = 16, segments: int = 32):
-    """A UV sphere: vertices on the sphere of `radius` [m] at `centre`, outward triangles."""
-    theta = np.linspace(0.0, math.pi, rings + 1)[1:-1]
-    phi = np.linspace(0.0, 2.0 * math.pi, segments, endpoint=False)
-    t, p = np.meshgrid(theta, phi, indexing="ij")
-    ring = np.stack([np.sin(t) * np.cos(p), np.cos(t), -np.sin(t) * np.sin(p)], -1).reshape(-1, 3)
-    v = np.vstack([[0.0, 1.0, 0.0], ring, [0.0, -1.0, 0.0]]) * radius + centre
-    faces = []
-    s = segments
-    for j in range(s):
-        faces.append([0, 1 + j, 1 + (j + 1) % s])
-        last = 1 + (rings - 2) * s
-        faces.append([len(v) - 1, last + (j + 1) % s, last + j])
-        for i in range(rings - 2):
-            a, b = 1 + i * s + j, 1 + i * s + (j + 1) % s
-            faces += [[a, a + s, b + s], [a, b + s, b]]
-    return v, np.array(faces)
 
 
 def _box_edges(lo, hi):
     corners = np.array([[(lo, hi)[i >> k & 1][k] for k in range(3)] for i in range(8)])
     pairs = [(i, i | 1 << k) for i in range(8) for k in range(3) if not i >> k & 1]
     return corners[[a for a, _ in pairs]], corners[[b for _, b in pairs]]
-
-
-def _interpolate_frames(frames, t: float) -> np.ndarray:
-    """A deforming mesh's vertices at t [s]: linear between its frames, held outside them."""
-    times, x = frames
-    if t <= times[0]:
-        return x[0]
-    if t >= times[-1]:
-        return x[-1]
-    k = int(np.searchsorted(times, t, side="right")) - 1
-    s = (t - times[k]) / (times[k + 1] - times[k])
-    return (1.0 - s) * x[k] + s * x[k + 1]
 
 
 # ---------------------------------------------------------------------------------------------- helpers

@@ -16,6 +16,7 @@ from ..runtime import ensure_initialized, float_dtype, np_float
 from . import numpy_path
 from .adaptive import FAIL_MAX_STEPS
 from .system import TAICHI_MAX_DIM_IMPLICIT, System
+from .taichi_path import build_kernel
 
 METHODS = ("explicit_euler", "symplectic_euler", "midpoint", "rk4", "rk45", "adaptive", "implicit_euler")
 ORDERS = {"explicit_euler": 1, "symplectic_euler": 1, "midpoint": 2, "rk4": 4, "rk45": 5, "implicit_euler": 1}
@@ -242,8 +243,6 @@ def _advance_taichi(system, method, u, hs, ts, stats, ta, tb, n_steps, opts) -> 
     key = (method, opts["base"], str(float_dtype()))
     first = key not in system._kernels
     if first:
-        from .taichi_path import build_kernel
-
         system._kernels[key] = build_kernel(system, method, opts["base"], float_dtype())
     args = (u, hs, ts, stats, ta, tb, n_steps, opts["rtol"], opts["atol"], opts["k_max"], opts["grow_below"])
     args += (opts["newton_tol"], opts["newton_iterations"], opts["h_min"], opts["max_rejected"])

@@ -14,8 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import validate
+from .. import runtime, validate
 from ..errors import ParameterError
+from ..io.atomic import atomic_path
+from ..io.export import area_weighted_normals
+from . import raster
 from .camera import DEFAULT_RESOLUTION, Camera, fit_camera
 from .colormap import draw_legend
 
@@ -90,8 +93,6 @@ class DrawList:
         """vertices (V,3) [m]; triangles (F,3) int, counter-clockwise seen from the front; normals (V,3)
         or None (area-weighted from the faces); colors: one colour or (V,3); back_color: the colour of
         the back side (None: the front's)."""
-        from ..io.export import area_weighted_normals
-
         v = validate.finite_array("vertices", vertices, (3,))
         f = validate.indices("faces", triangles, 3, len(v), "vertices")
         if not len(f):
@@ -189,9 +190,6 @@ def render_image(
     background: one colour or (top, bottom) for a vertical gradient; samples: s x s samples per pixel
     (antialiasing; 1 to 4); line_width_px: line width in pixels. Starts Taichi on the CPU if the
     application has not initialised it, and runs on whatever backend is running."""
-    from .. import runtime
-    from . import raster
-
     samples = validate.count("samples", samples, 1, 4)
     lighting = lighting or Lighting()
     if camera is None:
@@ -267,8 +265,6 @@ def render_image(
 def write_png(path: str | os.PathLike, image: np.ndarray) -> Path:
     """Write an (H, W, 3) uint8 image as PNG, atomically (a hidden temporary renamed once complete)."""
     from PIL import Image
-
-    from ..io.atomic import atomic_path
 
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:

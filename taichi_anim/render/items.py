@@ -1,4 +1,4 @@
-"""Rendering a scene's frame content (scenes/content.py: Points, Mesh, Lines) with the rasterizer.
+"""Rendering a scene's frame content (content.py: Points, Mesh, Lines) with the rasterizer.
 
 Points with radii are balls of those radii (hard spheres), points without are balls of `point_radius`;
 meshes are smooth-shaded from their vertex normals, cloth with a back colour of its own (two-sided);
@@ -7,6 +7,7 @@ and adds its legend."""
 
 import numpy as np
 
+from ..content import Lines, Mesh, Points
 from .camera import Camera
 from .colormap import ColorBy, colormap, draw_legend
 from .image import BACKGROUND, DrawList, Lighting, render_image
@@ -21,8 +22,6 @@ def back_color(front) -> np.ndarray:
 
 def items_draw_list(items, *, point_radius: float, color_by: ColorBy | None = None):
     """(DrawList, legend (label, lo, hi) or None) for content items."""
-    from ..scenes.content import Lines, Mesh, Points
-
     draw = DrawList()
     points = [i for i in items if isinstance(i, Points) and len(i.positions)]
     legend = None

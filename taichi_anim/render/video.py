@@ -34,6 +34,7 @@ import numpy as np
 
 from .. import validate
 from ..errors import DivergenceError, OutputError, ParameterError
+from ..io.atomic import atomic_path, output_error
 
 FORMATS = (".mp4", ".gif")
 # Exceptions after which the frames written so far are still published: a diverged run (its frames up
@@ -103,8 +104,6 @@ class VideoWriter:
         return 0 if self._encoder is None else self._encoder.accepted()
 
     def __enter__(self) -> "VideoWriter":
-        from ..io.atomic import atomic_path
-
         self._stack = contextlib.ExitStack()
         self._tmp = self._stack.enter_context(atomic_path(self.path))
         return self
@@ -318,8 +317,6 @@ class _FfmpegEncoder:
         """One line saying why the video could not be written: a full disk, a file size limit or
         permissions (from the pipe's error, ffmpeg's messages or its exit signal), else ffmpeg's last
         message; never its command line."""
-        from ..io.atomic import output_error
-
         code = None if self._process is None else self._process.poll()
         self._log.seek(0)
         log = self._log.read()[-4000:].decode("utf-8", "replace")

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..content import Lines, Mesh, Points, segments_from_pairs
 from ..errors import ParameterError
 from ..integrators import Integrator
 from ..io.export import (
@@ -23,7 +24,6 @@ from ..model import Model
 from ..render import Camera, ColorBy, fit_camera, render_items, write_png
 from ..stability import auto_substeps
 from ..state import ParticleSnapshot, State
-from .content import Lines, Mesh, Points, segments_from_pairs
 
 # Cloth: the front colour (the renderer lightens it for the back, so folds read clearly); props
 # (colliders drawn for context) in grey.
@@ -107,7 +107,7 @@ class Scene:
         return snap.x[rows], np.searchsorted(used, tri), used
 
     def frame_content(self) -> list:
-        """What this instant shows, as content items (scenes/content.py) that PLY, USD and the renderer
+        """What this instant shows, as content items (content.py) that PLY, USD and the renderer
         all read: the cloth mesh (vertex normals area-weighted), the particles that are no cloth vertex
         (with velocity and age), trails, props as collider meshes and guides as lines."""
         snap = self.state.snapshot()

@@ -11,9 +11,9 @@ import numpy as np
 
 from .. import Builder, make_integrator
 from ..blobs import BlobField, BlobMesh
+from ..content import Mesh
 from ..errors import ParameterError
 from .base import Scene
-from .content import Mesh
 
 WATER = (0.35, 0.6, 0.95)
 

@@ -12,9 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import Builder, RigidMotion, make_integrator
+from ..content import Mesh
 from .base import PROP_COLOR, Scene
 from .cloth import FRAME_DT, material_for, substeps_for
-from .content import Mesh
 from .drape import uv_sphere
 
 BALL_FRAMES = 9  # keyframes of the ball's motion (slerp between them)

@@ -49,6 +49,8 @@ from ..io.manifest import (
     prepare_run_folder,
     write_manifest,
 )
+from ..io.usd import UsdStageWriter
+from ..render import VideoWriter
 from ..runtime import backend_name
 from .base import Scene
 
@@ -190,8 +192,6 @@ def _usd_stage(scene, out, formats):
     """The run's UsdStageWriter (out/<scene>.usd), or a null context without USD export."""
     if "usd" not in formats:
         return contextlib.nullcontext()
-    from ..io.usd import UsdStageWriter
-
     return UsdStageWriter(
         out / f"{scene.name}.usd",
         fps=1.0 / scene.frame_dt,
@@ -203,8 +203,6 @@ def _usd_stage(scene, out, formats):
 
 
 def _simulate(scene, stepper, frames, out, formats, progress, viewer, run, tqdm) -> None:
-    from ..render import VideoWriter
-
     state = scene.state
     desc = scene.name if run["video_path"] is None else f"{scene.name} (+video)"
     bar = tqdm(range(frames), desc=desc, unit="frame", disable=not progress, leave=False)

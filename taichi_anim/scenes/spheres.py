@@ -7,8 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import Builder, make_integrator
+from ..content import Points
 from .base import Scene
-from .content import Points
 
 FRAME_DT = 1 / 30  # [s]
 # The pour's own colours (blue at rest to orange at 2 m/s) when the picture does not colour by speed.

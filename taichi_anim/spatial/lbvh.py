@@ -41,10 +41,10 @@ import taichi as ti
 from taichi.lang import impl
 
 from .. import validate
-from ..collision.prefix_sum import PrefixSum
 from ..errors import ParameterError
 from ..runtime import backend_name, data_oriented, float_dtype, serial_loops
 from .bounds import INV_DIR_PARALLEL, aabb_overlap, aabb_point_distance_sq, aabb_ray, aabb_surface_area
+from .prefix_sum import PrefixSum
 
 STACK_SIZE = 64
 MORTON_BITS_PER_AXIS = 10

@@ -23,11 +23,11 @@ cheap as a refit)."""
 import taichi as ti
 
 from .. import validate
-from ..collision.prefix_sum import PrefixSum
 from ..errors import ParameterError
 from ..runtime import data_oriented, serial_loops
 from .bounds import aabb_overlap, aabb_point_distance_sq
 from .lbvh import float_bytes
+from .prefix_sum import PrefixSum
 
 MAX_LEVEL = 16  # 2^16 cells per axis at the finest level; the cell coordinates stay well inside i32
 LEVELS = MAX_LEVEL + 1

@@ -26,6 +26,7 @@ explicit. Degenerate triangles (|c| = 0) and still air (s = 0) give exactly zero
 
 import math
 
+import numpy as np
 import taichi as ti
 
 from .. import validate
@@ -46,6 +47,7 @@ class AeroTriangles(ElementTerm):
 
     arity = 3
     has_energy = False
+    energy_kind = "source"  # the wind does work on the cloth
 
     def __init__(
         self,
@@ -85,6 +87,10 @@ class AeroTriangles(ElementTerm):
             "gust_amplitude": self.gust_amplitude,
             "gust_frequency": self.gust_frequency,
         }
+
+    def speed_bound(self) -> float:
+        """The strongest gust's speed |wind| (1 + gust_amplitude) [m/s]."""
+        return float(np.linalg.norm(self.wind)) * (1.0 + self.gust_amplitude)
 
     # ---- element functions (base.py)
 

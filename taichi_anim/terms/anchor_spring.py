@@ -36,10 +36,38 @@ class AnchorSpring(PointTerm):
         self.anchor.from_numpy(anchor.astype(np_float()))
         self.params.from_numpy(params.astype(np_float()))
         self.count = len(springs)
+        self._arrays = None  # (anchor, params) as the fields hold them, in float64 (read once)
+
+    energy_kind = "potential"  # the spring's; its damping only removes energy
 
     def settings(self) -> dict:
         """The term's settings for run.json: type and spring count."""
         return {"type": "anchor_spring", "count": self.count}
+
+    def _numpy(self):
+        if self._arrays is None:
+            self._arrays = (
+                self.anchor.to_numpy().astype(np.float64),
+                self.params.to_numpy().astype(np.float64),
+            )
+        return self._arrays
+
+    def energy(self, x, masses=None) -> float:
+        """Elastic energy sum k (|x - anchor| - L0)^2 / 2 [J] at positions x (N,3) [m]."""
+        anchor, p = self._numpy()
+        d = np.linalg.norm(np.asarray(x, dtype=np.float64) - anchor, axis=1)
+        return 0.5 * float(np.sum(p[:, 0] * (d - p[:, 1]) ** 2))
+
+    def point_blocks(self, x, v, t: float):
+        """(-df/dx, -df/dv) (N,3,3): k [n n^T + max(1 - L0/l, 0) (I - n n^T)] and c n n^T."""
+        anchor, p = self._numpy()
+        stiff, rest, damp = p.T
+        d = np.asarray(x, dtype=np.float64) - anchor
+        length = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
+        nrm = d / length[:, None]
+        nn = nrm[:, :, None] * nrm[:, None, :]
+        tr = np.maximum(1.0 - rest / length, 0.0)
+        return stiff[:, None, None] * (nn + tr[:, None, None] * (np.eye(3) - nn)), damp[:, None, None] * nn
 
     @ti.func
     def _frame(self, i, x):

@@ -19,18 +19,87 @@ float atomics, so results do not depend on the thread count.
 
 `ElementTerm` implements all of this for an element of `arity` particles given three element functions
 of a subclass: `element_force`, `element_linear` and `element_energy` (see their docstrings). Adding a
-term is one file with such a subclass and one Builder method.
+term is one file with such a subclass and one Builder method (or, for a term of one's own,
+`Builder.add_force(term)`).
+
+What the checkers ask of a term (the watchdog, statics and the stability guard ask the term, never its
+class; `TermBounds` gives the defaults, and `check_protocol` refuses a term that lacks what it declares):
+  energy_kind                 "potential": `energy(x, masses)` is the potential of its conservative
+                              part (any other part only removes energy, e.g. damping); "dissipative": it
+                              only removes energy and vanishes at v = 0 (drag in still air); "source": it
+                              can add energy (wind, aerodynamics, a stirring field): it must give
+                              `speed_bound()`, and the scene's energy is then not checked
+  speed_bound() [m/s]         the largest speed it drives particles towards (wind); 0 by default
+  acceleration_bound() [m/s^2] the largest uniform acceleration it keeps supplying (|g|); 0 by default
+  stored_energy(x, masses) [J] the energy it can release from positions x: energy - energy_floor
+  energy_floor(masses) [J]    the least value its potential takes (0 for elastic terms, by default)
+  static_potential(x, masses) the potential of its force at v = 0 (statics' line search), or None
+  point_blocks(x, v, t)       (pointwise) -df/dx and -df/dv (N,3,3) in NumPy, or None: then a kernel
+                              evaluates `jacobian` (the stability estimate)
+  stiffness_part(x, v, t)     (elements) K = -df/dx and C = -df/dv as a stability part (stability.py)
 """
 
 import numpy as np
 import taichi as ti
 
+from ..errors import ParameterError
 from ..runtime import data_oriented, np_float
+from .stiffness import BlockPart
+
+ENERGY_KINDS = ("potential", "dissipative", "source")
+
+
+class TermBounds:
+    """Defaults of what the checkers ask of a term (see the module docstring); every one is safe: a term
+    that adds energy must say so (energy_kind "source") and give its speed, or `check_protocol` refuses it."""
+
+    energy_kind = None  # undeclared: check_protocol refuses the term
+
+    def settings(self) -> dict:
+        """The term's settings for run.json: its type (the class name unless a subclass says more)."""
+        return {"type": type(self).__name__}
+
+    def speed_bound(self) -> float:
+        """The largest speed [m/s] the term drives particles towards (0: none of its own)."""
+        return 0.0
+
+    def acceleration_bound(self) -> float:
+        """The largest uniform acceleration [m/s^2] the term keeps supplying (0: none)."""
+        return 0.0
+
+    def energy_floor(self, masses) -> float:
+        """The least value [J] the term's potential takes, with particle masses (N,) [kg] (0: elastic)."""
+        return 0.0
+
+    def stored_energy(self, x, masses) -> float:
+        """The energy [J] the term can release from positions x (N,3) [m]: its potential above its floor
+        (0 unless energy_kind is "potential"). A potential below the declared floor raises, naming the
+        term: its `energy_floor` is wrong."""
+        if self.energy_kind != "potential":
+            return 0.0
+        e = float(self.energy(x, masses))
+        floor = float(self.energy_floor(masses))
+        if floor - e > 1e-9 * max(abs(e), abs(floor)) + 1e-12:  # beyond round-off of an elastic 0
+            raise ParameterError(
+                f"{type(self).__name__}: its energy {e:.6g} J is below its energy_floor {floor:.6g} J; "
+                "override energy_floor(masses) with the least value its potential takes"
+            )
+        return max(e - floor, 0.0)
+
+    def static_potential(self, x, masses):
+        """The potential [J] of the term's force at v = 0 at positions x (N,3) [m], or None if that force
+        has none (a source)."""
+        if self.energy_kind == "potential":
+            return float(self.energy(x, masses))
+        if self.energy_kind == "dissipative":
+            return 0.0
+        return None
 
 
 @data_oriented
-class PointTerm:
-    """Base of pointwise terms. has_jacobian = False: the Jacobian is identically zero (skipped)."""
+class PointTerm(TermBounds):
+    """Base of pointwise terms. has_jacobian = False: the Jacobian is identically zero (skipped);
+    has_energy: its energy is elastic and reported by Model.energy."""
 
     coupled = False
     has_jacobian = True
@@ -41,8 +110,13 @@ class PointTerm:
         return None
 
     def energy(self, x, masses) -> float:
-        """Energy [J] at positions x (N,3) [m] with masses (N,) [kg]; 0 for a term without a potential."""
+        """Energy [J] at positions x (N,3) [m] with masses (N,) [kg]; 0 for a term without a potential
+        (a term of energy_kind "potential" must override it)."""
         return 0.0
+
+    def point_blocks(self, x, v, t: float):
+        """(K, C) = (-df/dx, -df/dv) (N,3,3) at x, v (N,3) in NumPy, or None (a kernel evaluates them)."""
+        return None
 
 
 @data_oriented
@@ -70,7 +144,7 @@ def adjacency(vertices: np.ndarray, particle_count: int):
 
 
 @data_oriented
-class ElementTerm:
+class ElementTerm(TermBounds):
     """Base of terms over elements of `arity` particles. vertices (E, arity) particle indices.
 
     Subclasses define, with X and V the element's stacked positions and velocities (3*arity vectors,
@@ -86,6 +160,7 @@ class ElementTerm:
     has_jacobian = True
     has_energy = True
     arity = 2
+    fast_blocks = False  # element_arrays compiles the element Hessians (seconds): stability probes instead
 
     def __init__(self, particle_count: int, vertices):
         vertices = np.asarray(vertices, dtype=np.int64).reshape(-1, self.arity)
@@ -203,6 +278,14 @@ class ElementTerm:
         self._energy(xf, out)
         return float(out[None])
 
+    def stiffness_part(self, x, v, t: float):
+        """K = -df/dx and C = -df/dv of every element at x, v (N,3), as a stability part (stability.py)."""
+        # S(h) = h C + h^2 K (see element_linear): two step sizes separate K and C.
+        s1 = self.element_arrays(x, v, t, 1.0)[2]
+        s2 = self.element_arrays(x, v, t, 2.0)[2]
+        k = 0.5 * (s2 - 2.0 * s1)
+        return BlockPart(self.vertices, k, s1 - k)
+
     @ti.kernel
     def _energy(self, xf: ti.template(), out: ti.template()):
         out[None] = 0.0
@@ -252,3 +335,61 @@ class ElementTerm:
             FL[e] = f
             S[e] = s
             KV[e] = kv
+
+
+# ---- the protocol check (Builder.add_force, finalize) and the user's finite-difference check
+
+_POINT_METHODS = ("force", "jacobian", "energy", "make_cache")
+_ELEMENT_METHODS = ("evaluate", "gather", "linearize", "gather_linear", "apply", "make_cache", "energy")
+_BOUND_METHODS = (
+    "settings",
+    "speed_bound",
+    "acceleration_bound",
+    "energy_floor",
+    "stored_energy",
+    "static_potential",
+)
+
+
+def check_protocol(term) -> None:
+    """Raise ParameterError naming `term`'s class and everything it lacks to be a force term the engine
+    can use: the methods of its kind (pointwise: `force`, `jacobian`; an ElementTerm: `element_force`,
+    `element_linear`, `element_energy`), a declared `energy_kind` ("potential", "dissipative" or
+    "source"), an `energy` of its own if it declares a potential, and a `speed_bound` of its own if it
+    declares a source (the watchdog bounds particle speeds with it). Builder.add_force calls it; the
+    user's check is `check_term` (terms/check.py), which adds finite differences."""
+    name = type(term).__name__
+    missing = []
+    coupled = getattr(term, "coupled", None)
+    if not isinstance(coupled, bool):
+        missing.append("coupled (False for a pointwise term, True for an element term)")
+    elif coupled and isinstance(term, ElementTerm):
+        missing += [m for m in ("element_force", "element_linear", "element_energy") if not _has(term, m)]
+    else:
+        missing += [m for m in (_ELEMENT_METHODS if coupled else _POINT_METHODS) if not _has(term, m)]
+    missing += [m for m in _BOUND_METHODS if not _has(term, m)]
+    for flag in ("has_jacobian", "has_energy"):
+        if not isinstance(getattr(term, flag, None), bool):
+            missing.append(f"{flag} (True or False)")
+    kind = getattr(term, "energy_kind", None)
+    if kind not in ENERGY_KINDS:
+        missing.append(f"energy_kind (one of {', '.join(map(repr, ENERGY_KINDS))}; got {kind!r})")
+    elif kind == "potential" and coupled is False and _inherited(term, "energy", PointTerm):
+        missing.append("energy(x, masses) (it declares energy_kind 'potential')")
+    elif kind == "source" and _inherited(term, "speed_bound", TermBounds):
+        missing.append("speed_bound() (it declares energy_kind 'source': the watchdog needs its speed)")
+    if missing:
+        raise ParameterError(
+            f"force term {name} lacks: {'; '.join(missing)} (the force-term protocol: "
+            "taichi_anim/terms/base.py)"
+        )
+
+
+def _has(term, method: str) -> bool:
+    return callable(getattr(term, method, None))
+
+
+def _inherited(term, method: str, base) -> bool:
+    """Whether `term` takes `method` unchanged from `base` (or lacks it)."""
+    own = getattr(type(term), method, None)
+    return own is None or own is getattr(base, method, None)

@@ -126,6 +126,7 @@ class BendingDihedral(ElementTerm):
     D = Y t^3 / (12 (1 - nu^2))), damping beta [s] (Rayleigh, stiffness-proportional)."""
 
     arity = 4
+    energy_kind = "potential"  # the hinge energy; the Rayleigh damping only removes energy
 
     def __init__(
         self, particle_count: int, hinges, rest_positions, *, stiffness: float, damping: float = 0.0

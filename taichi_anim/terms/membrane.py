@@ -114,6 +114,7 @@ class MembraneStVK(ElementTerm):
     anisotropy along warp_direction; projected=False keeps the indefinite exact Hessian (for tests)."""
 
     arity = 3
+    energy_kind = "potential"  # StVK strain energy; the Rayleigh damping only removes energy
 
     def __init__(
         self,

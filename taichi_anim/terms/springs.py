@@ -17,6 +17,8 @@ import numpy as np
 import taichi as ti
 
 from ..runtime import data_oriented, np_float
+from .base import TermBounds
+from .stiffness import SpringPart
 
 _EPS = 1e-12
 
@@ -57,7 +59,7 @@ class SpringCache:
 
 
 @data_oriented
-class Springs:
+class Springs(TermBounds):
     """Springs of a model, an element term of two particles (the term protocol in base.py, in the compact
     form a spring allows: a direction and two stiffnesses instead of four 3x3 blocks).
     pairs (S,2) particle indices; rest_length (S,) [m]; stiffness (S,) [N/m]; damping (S,) [kg/s] along
@@ -66,6 +68,8 @@ class Springs:
     coupled = True
     has_jacobian = True
     has_energy = True
+    energy_kind = "potential"  # elastic; the damping only removes energy
+    fast_blocks = True  # stiffness_part is NumPy: the stability estimate uses the exact blocks
 
     def __init__(self, particle_count: int, pairs, rest_length, stiffness, damping, family=None):
         pairs = np.sort(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), axis=1)
@@ -132,6 +136,10 @@ class Springs:
         )
         stretch = np.linalg.norm(d, axis=1) - self.rest_length
         return float(0.5 * np.sum(self.stiffness * stretch**2))
+
+    def stiffness_part(self, x, v, t: float):
+        """K = -df/dx and C = -df/dv of the springs at x (N,3), in their compact form (stability.py)."""
+        return SpringPart(self, np.asarray(x, dtype=np.float64))
 
     @ti.func
     def evaluate(self, cache: ti.template(), xf: ti.template(), vf: ti.template(), t, serial: ti.template()):

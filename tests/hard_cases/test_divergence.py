@@ -54,7 +54,7 @@ def test_spring_explosion_stops_early_naming_step_particle_quantity_value():
     e = err.value
     watchdog = integ.stepper_for(model).watchdog
     lo, hi, speed = watchdog.limits_at(state.time)
-    assert e.step <= 5 and state.step_count == e.step - 1  # left at the last good step
+    assert e.step == state.step_count <= 5
     assert e.particle == 1 and e.quantity == "speed" and e.value > speed
     assert f"step {e.step}" in str(e) and "particle 1" in str(e) and "speed" in str(e)
     x = state.particle_x.to_numpy()
@@ -74,7 +74,7 @@ def test_stiff_cloth_explosion_stops_early(method):
         for _ in range(2000):
             integ.step(model, state, 1 / 60)
     e = err.value
-    assert e.step <= 10 and state.step_count == e.step - 1
+    assert e.step == state.step_count <= 10
     assert 0 <= e.particle < model.particle_count and e.quantity in ("speed", "position")
     assert math.isfinite(e.value)
     lo, hi, _ = integ.stepper_for(model).watchdog.limits_at(state.time)
@@ -98,15 +98,16 @@ def _bead_run(integ, model, state, steps: int = 3000):
 
 @pytest.mark.parametrize("check_every", [1, 3])
 def test_a_divergence_error_leaves_the_state_at_the_last_good_step(check_every):
-    """Pass: the spring example (a bead on a stiff spring that explodes) under the default policy
-    "raise": after the DivergenceError the state's positions, velocities, step count and time equal,
+    """Pass: the spring example (a bead on a stiff spring that explodes) under policy "raise" with
+    keep_last_good: after the DivergenceError the state's positions, velocities, step count and time equal,
     bitwise, those after the last good step that was checked (the step before the bad one with
     check_every 1; the last multiple of 3 before it with check_every 3), the message says so, the watch
     is cleared (stepping on with a stable dt works and counts from there). Without the rollback the
-    state held the bad step (the bead at 468 m/s, step 2)."""
+    state held the bad step (the bead at 468 m/s, step 2), as it still does by default (checked below)."""
     ta.init("cpu", precision="f32")
     model, state = spring_pair()
-    integ = ta.make_integrator("symplectic_euler", check_every=check_every)
+    keep = {"keep_last_good": True}
+    integ = ta.make_integrator("symplectic_euler", check_every=check_every, policy=keep)
     good, e = _bead_run(integ, model, state)
     last = (e.step - 1) // check_every * check_every  # the last checked step before the bad one
     x, v, count, t = good[last]
@@ -117,6 +118,10 @@ def test_a_divergence_error_leaves_the_state_at_the_last_good_step(check_every):
     assert int(state.nonfinite_count[None]) == 0
     integ.step(model, state, 1e-5)  # h w = 0.03: stable
     assert state.step_count == last + 1
+    # By default no copy is kept: the state holds the bad step, and the message says how to keep one.
+    model, state = spring_pair()
+    good, e = _bead_run(ta.make_integrator("symplectic_euler", check_every=check_every), model, state)
+    assert state.step_count == e.step and "keep_last_good=True" in str(e)
 
 
 def test_energy_growth_is_caught_before_the_speed_bound():

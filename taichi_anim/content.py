@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import ParameterError
+from .errors import ParameterError
 
 # Roles tell writers and the renderer what an item is, not how to draw it.
 POINT_ROLES = ("particles", "spheres")

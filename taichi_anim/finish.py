@@ -1,0 +1,31 @@
+"""The finish tail of a particle's step, fused into each method's last kernel (integrators/base.py):
+colliders against the step's start point, attachments onto their targets, the divergence watchdog, and
+the write. One place, so every method ends a step the same way whatever its update."""
+
+import taichi as ti
+
+from .collision import collide
+from .collision.motion import follow_attachments
+from .watchdog import watch_particle
+
+
+@ti.func
+def finish_particle(
+    model: ti.template(), state: ti.template(), mode: ti.template(), i, x0, v0, x1, v1, t, h, step
+):
+    """The end of a step [t, t + h] for particle i, fused into a method's last kernel: colliders against
+    the step's start point (x0, v0), attached particles onto their targets, the divergence watchdog
+    (non-finite or out-of-bounds results, watchdog.py), and the write.
+
+    Pinned particles (mass 0) are kinematic, as in Blender, Houdini Vellum and Newton: colliders never
+    move them, even one placed inside a collider (State.set_positions); they go only where their
+    velocity or their attachment's target takes them."""
+    x, v = x1, v1
+    if ti.static(model.collider_count > 0):
+        if model.inv_mass(i) > 0.0:
+            x, v = collide(model.colliders, mode, x0, v0, x1, v1, t, h, model.radius(i), model.rest_speed)
+    if ti.static(model.attachment_count > 0):
+        x, v = follow_attachments(model.attachments, model.particle_attachment, i, x0, x, v, t + h, h)
+    watch_particle(state, i, x, v, t + h, step)
+    state.particle_x[i] = x
+    state.particle_v[i] = v
