@@ -27,8 +27,9 @@ LAYERS = [
     ("errors", "validate", "rng", "runtime", "health", "interrupts", "compile_clock", "device_probe"),
     # file formats and atomic writes of plain arrays (no model, no scene)
     ("io.atomic", "io.read_guard", "io.obj_scan", "io.export", "io.lock", "io.manifest"),
-    # meshes and cloth materials from arrays or files
-    ("geometry", "cloth"),
+    # meshes and cloth materials from arrays or files; what a frame shows (plain data: points, meshes,
+    # lines), which body kinds make and io/, render/ and the viewer read
+    ("geometry", "cloth", "content"),
     # geometry queries, prefix sums, matrix-free linear solvers
     ("spatial", "linalg"),
     # the parts a scene is made of: force terms, colliders and contacts, particle sources, body kinds
@@ -42,8 +43,7 @@ LAYERS = [
     # who advances it
     ("stability", "finish", "solvers", "integrators", "stepper", "statics"),
     ("ode",),
-    # what a frame shows, and who reads it: USD, pictures, video, the window
-    ("content",),
+    # who reads a frame: USD, pictures, video, the window
     ("io", "io.usd", "render", "viewer"),
     # the public names
     ("",),

@@ -126,8 +126,8 @@ def test_a_solver_lacking_a_hook_is_refused_naming_it():
 
 
 def test_a_solver_check_error_rolls_the_step_back():
-    """A solver's `check` raising DivergenceError is the Stepper's divergence: the state goes back to the
-    last good step (here the start: x = 0 for particle 0)."""
+    """A solver's `check` raising DivergenceError is the Stepper's divergence: with keep_last_good the
+    state goes back to the last good step (here the start: x = 0 for particle 0)."""
 
     class Refuses(Damper):
         def check(self, state):
@@ -135,7 +135,7 @@ def test_a_solver_check_error_rolls_the_step_back():
 
     model = _free_particles()
     state = model.state()
-    stepper = ta.make_integrator("symplectic_euler").stepper_for(model)
+    stepper = ta.make_integrator("symplectic_euler", policy={"keep_last_good": True}).stepper_for(model)
     stepper.add_solver(Refuses(1.0, []))
     with pytest.raises(ta.DivergenceError, match="toy solver refuses"):
         stepper.step(state, 1.0 / 16)

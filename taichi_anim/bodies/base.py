@@ -9,7 +9,8 @@ inherit from, so its public names sit where users look for them (`Builder.add_pa
   state     a State mixin (data-oriented: it may hold kernels): its dynamic arrays, their NumPy access
             and its read-only output (a snapshot)
 
-and the hooks the hubs call, in `KINDS` order, for every kind (below). Adding a kind is a folder under
+and the hooks the hubs call, in `KINDS` order, for every kind (below), among them its output items
+(content.py: points, meshes, lines, which every output reads). Adding a kind is a folder under
 bodies/ with these parts and one entry in `bodies.KINDS`; its time stepping is a solver in the Stepper's
 list (solvers.py), which reads and writes its state arrays."""
 
@@ -29,6 +30,8 @@ class BodyKind:
     start_state(state, model)              fill them for t = 0 (Model.state)
     save_state(state, into, whole_trail)   copy them into another State of the model (State.save: a
                                            rollback point; one kernel launch per kind)
+    output_items(model, state) -> list     what the kind shows now, as content items (content.py), which
+                                           PLY, USD and the renderer read (Scene.frame_content)
     """
 
     name: str
@@ -41,3 +44,4 @@ class BodyKind:
     init_state: Callable
     start_state: Callable
     save_state: Callable
+    output_items: Callable

@@ -9,13 +9,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..bodies.particles.output import cloth_mesh
 from ..content import Lines, Mesh, Points, segments_from_pairs
 from ..errors import ParameterError
 from ..integrators import Integrator
 from ..io.export import (
     area_weighted_normals,
     frame_path,
-    trails_to_line_set,
     write_line_set,
     write_point_cloud,
     write_triangle_mesh,
@@ -27,7 +27,6 @@ from ..state import ParticleSnapshot, State
 
 # Cloth: the front colour (the renderer lightens it for the back, so folds read clearly); props
 # (colliders drawn for context) in grey.
-CLOTH_FRONT = np.array([0.95, 0.42, 0.3])
 PROP_COLOR = np.array([0.55, 0.58, 0.62])
 GUIDE_COLOR = (0.35, 0.4, 0.45)
 RESOLUTION = (960, 720)  # [px] of pictures and videos (even: H.264 needs it)
@@ -96,49 +95,16 @@ class Scene:
 
     def cloth_mesh(self, snap: ParticleSnapshot | None = None):
         """The cloth surface now, or None without cloth: (vertices (V,3) [m], triangles (F,3) int into
-        them, particle (V,) model index of each vertex). Vertices keep the model's particle order, so a
-        model of cloth only exports its particles as they are numbered (pin indices stay valid)."""
-        tri = self.model.triangles
-        if tri is None:
-            return None
-        snap = self.state.snapshot() if snap is None else snap
-        used = np.unique(tri)
-        rows = np.searchsorted(snap.index, used)  # cloth vertices never die, so every one is in snap
-        return snap.x[rows], np.searchsorted(used, tri), used
+        them, particle (V,) model index of each vertex), in the model's particle order (pin indices stay
+        valid)."""
+        return cloth_mesh(self.model, self.state.snapshot() if snap is None else snap)
 
     def frame_content(self) -> list:
         """What this instant shows, as content items (content.py) that PLY, USD and the renderer
-        all read: the cloth mesh (vertex normals area-weighted), the particles that are no cloth vertex
-        (with velocity and age), trails, props as collider meshes and guides as lines."""
-        snap = self.state.snapshot()
-        mesh = self.cloth_mesh(snap)
-        items = []
-        keep = np.ones(len(snap.x), dtype=bool)
-        if mesh is not None:
-            vertices, triangles, particle = mesh
-            normals = area_weighted_normals(vertices, triangles)
-            items.append(Mesh("", vertices, triangles, normals, tuple(CLOTH_FRONT), role="cloth"))
-            keep = ~np.isin(snap.index, particle)
-        if mesh is None or keep.any():
-            index = snap.index[keep]
-            # particles given a radius are balls of that radius in every output; points have none
-            radii = self.model.particle_radii(index) if self.model.max_radius > 0 else None
-            items.append(
-                Points(
-                    "" if mesh is None else "particles",
-                    snap.x[keep],
-                    snap.color[keep],
-                    index,
-                    radii,
-                    attributes={"velocity": snap.v[keep], "age": snap.age[keep]},
-                )
-            )
-        if snap.trails is not None:
-            points, lines = trails_to_line_set(snap.trails)
-            items.append(Lines("trails", points, lines, color=(0.5, 0.7, 1.0), role="trails", export=True))
-        items += self.prop_items()
-        items += self.guide_items()
-        return items
+        all read: each body kind's items (bodies/: for particles the cloth mesh, the particles that are
+        no cloth vertex, trails), props as collider meshes and guides as lines."""
+        items = [item for kind in self.model.kinds for item in kind.output_items(self.model, self.state)]
+        return items + self.prop_items() + self.guide_items()
 
     def prop_items(self) -> list:
         """The scene's props (colliders drawn for context) as static collider meshes."""

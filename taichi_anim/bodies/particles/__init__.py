@@ -4,6 +4,7 @@ particles with element terms between them)."""
 from ..base import BodyKind
 from .builder import ParticleBuilder
 from .model import ParticleModel
+from .output import particle_items
 from .state import ALIVE_FOREVER, ParticleSnapshot, ParticleState, particle_colors
 
 
@@ -24,6 +25,7 @@ PARTICLES = BodyKind(
     init_state=ParticleState._init_particles,
     start_state=ParticleState._start_particles,
     save_state=ParticleState._save_particles,
+    output_items=particle_items,
 )
 
 __all__ = ["ALIVE_FOREVER", "PARTICLES", "ParticleSnapshot", "particle_colors"]
