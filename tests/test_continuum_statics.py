@@ -116,6 +116,7 @@ def side_by_side(meshes, gap=0.5):
 # 1. cantilever
 
 
+@pytest.mark.slow  # 29 s on 2 cores
 def test_cantilever_tip_deflection_matches_euler_bernoulli():
     """A strip, L = 0.3 m from the clamp to the tip and W = 0.03 m wide, flat in the xz plane: the grid
     columns at x = -a and x = 0 are pinned (the slope is clamped), density 0.2 kg/m^2 (q = 1.962 N/m^2),
@@ -230,6 +231,7 @@ FABRIC = ta.FabricMaterial(density=DENSITY, youngs_modulus=1e3, poisson_ratio=0.
 SPRINGS = ta.ClothMaterial(density=DENSITY, stretch_stiffness=1e3)
 
 
+@pytest.mark.slow  # 27 s on 2 cores
 def test_membrane_hanging_sheet_is_mesh_independent():
     """1 m square, 0.2 kg/m^2, StVK membrane E = 1e3 N/m, nu = 0.3, D = 1e-4 N m, hanging in its own
     plane (top edge at y = 0) from two 1/8 m clips at the top corners (the top-edge vertices within

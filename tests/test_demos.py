@@ -11,7 +11,11 @@ from taichi_anim.io.export import read_line_set, read_point_cloud, read_triangle
 from taichi_anim.scenes import SCENES, make_scene
 
 
-@pytest.mark.parametrize("name", sorted(SCENES))
+# The spheres demo (27 s at 4 frames of 240 steps) runs in the default suite as
+# tests/hard_cases/test_contacts.py::test_spheres_demo_keeps_its_spheres_apart; its export run is slow.
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=pytest.mark.slow) if n == "spheres" else n for n in sorted(SCENES)]
+)
 def test_demo_runs_and_exports(name, tmp_path, capsys):
     assert main(["demo", name, "--frames", "4", "--out", str(tmp_path), "--quiet", "--seed", "3"]) == 0
     line = capsys.readouterr().out.strip().splitlines()[-1]

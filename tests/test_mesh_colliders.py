@@ -69,7 +69,10 @@ def thrown(centre, count, speed, rng):
     return centre + 0.5 * d, -speed * d + aim, d
 
 
-@pytest.mark.parametrize("shape", ["icosphere", pytest.param("box", marks=pytest.mark.slow)])
+# Both shapes under slow (36 s each): the default run keeps the closed-mesh contacts of the other tests here.
+@pytest.mark.parametrize(
+    "shape", [pytest.param("icosphere", marks=pytest.mark.slow), pytest.param("box", marks=pytest.mark.slow)]
+)
 def test_fast_particles_and_spheres_never_end_inside_a_closed_mesh_in_backward_mode(shape):
     # 60 m/s at dt = 1/60 s: 1 m per step, across the whole mesh (0.5 to 0.6 m wide) from 0.5 m away.
     # Projection sees only the end points, past the mesh: they tunnel. The swept test must stop every
@@ -118,7 +121,8 @@ def rain(count, rng, lo, hi, height):
 
 # The backward variant compiles the mesh's swept test twice more (about a minute on CI): slow set; the
 # default run covers backward mode against meshes in the fast-particle test.
-@pytest.mark.parametrize("mode", ["projection", pytest.param("backward", marks=pytest.mark.slow)])
+@pytest.mark.slow  # 33 s per mode on 2 cores
+@pytest.mark.parametrize("mode", ["projection", "backward"])
 def test_mesh_box_and_quad_give_the_contacts_of_the_analytic_box_and_plane(mode):
     # On the faces (away from edges, where the analytic box's grown corners are square and the mesh's
     # round), the mesh's distance, normal and swept contact are the analytic ones: same trajectories to
