@@ -401,6 +401,14 @@ def pcd_header(path: Path) -> tuple[dict[str, list[str]], int] | None:
     return None
 
 
+def pcd_layout(fields: dict) -> tuple[int, str, int, int]:
+    """(points, data kind, bytes per point, values per point) of a parsed PCD header (pcd_header);
+    raises KeyError, IndexError or ValueError when a field is missing or malformed."""
+    points = int(fields["POINTS"][0])
+    row = sum(int(s) * int(c) for s, c in zip(fields["SIZE"], fields["COUNT"], strict=True))
+    return points, fields["DATA"][0], row, sum(int(c) for c in fields["COUNT"])
+
+
 def pcd_problem(path: Path) -> str | None:
     """Why a PCD file is not complete (no header, or fewer points than POINTS announces), or None."""
     parsed = pcd_header(path)
@@ -408,9 +416,7 @@ def pcd_problem(path: Path) -> str | None:
         return "no valid PCD header"
     fields, offset = parsed
     try:
-        points = int(fields["POINTS"][0])
-        data = fields["DATA"][0]
-        row = sum(int(s) * int(c) for s, c in zip(fields["SIZE"], fields["COUNT"], strict=True))
+        points, data, row, _ = pcd_layout(fields)
     except (KeyError, IndexError, ValueError):
         return "a malformed PCD header"
     if data == "ascii":

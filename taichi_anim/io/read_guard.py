@@ -27,7 +27,7 @@ import numpy as np
 
 from .. import validate
 from ..errors import ParameterError
-from .atomic import PLY_SIZES, pcd_header, ply_layout
+from .atomic import PLY_SIZES, pcd_header, pcd_layout, ply_layout
 
 MAX_LINE_BYTES = 1 << 20  # longest text line read [bytes], its line end included
 _BLOCK_BYTES = 1 << 22  # text read at once
@@ -417,10 +417,7 @@ def check_pcd(path: Path, size: int, what: str) -> None:
         )
     fields, offset = parsed
     try:
-        points = int(fields["POINTS"][0])
-        data_kind = fields["DATA"][0]
-        row = sum(int(s) * int(c) for s, c in zip(fields["SIZE"], fields["COUNT"], strict=True))
-        values = sum(int(c) for c in fields["COUNT"])
+        points, data_kind, row, values = pcd_layout(fields)
     except (KeyError, IndexError, ValueError):
         raise ParameterError(f"{path} is not a readable {what}: a malformed PCD header") from None
     if points < 0 or row <= 0:
