@@ -1,5 +1,6 @@
 """Command line: `taichi-anim demo [NAME] --frames N --out DIR [--arch cpu|gpu|auto] [--seed S]
-[--format ply|usd|both] [--video [PATH]] [--color-by speed|height|age|none]`.
+[--format ply|usd|both] [--video [PATH]] [--color-by speed|height|age|none]`, and
+`taichi-anim sweep NAME --param NAME=V1,V2,... [--param ...] [run options]` (taichi_anim.sweep).
 
 Exit codes: 0 the run completed; 2 a bad parameter, or a backend or viewer that is not available here
 (argparse's own usage errors are 2 as well); 3 output could not be written (disk full, no permission,
@@ -18,6 +19,7 @@ import warnings
 # scenes, runner and viewer as modules, not names: a call looks its function up when it runs, so a test
 # can replace it (as it could when these were imported inside the functions).
 from . import rng, runtime, scenes, validate, viewer
+from . import sweep as sweeps
 from .errors import (
     ConvergenceError,
     DivergenceError,
@@ -38,6 +40,55 @@ EXIT_SIMULATION = 4
 EXIT_INTERRUPTED = 130  # SIGINT; any stop signal: 128 + its number (RunInterrupted.exit_code)
 
 
+def _add_run_options(p: argparse.ArgumentParser) -> None:
+    """The options of one demo run, shared by `demo` and `sweep` (where each one given is fixed for every
+    run)."""
+    p.add_argument("--frames", type=int, default=None, help="frames to simulate (default: the scene's own)")
+    p.add_argument("--arch", choices=runtime.ARCHS, default="cpu", help="Taichi backend (default cpu)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument(
+        "--integrator",
+        choices=sorted([*INTEGRATORS, "auto"]),
+        default=None,
+        help="override the integrator ('auto', the cloth and drape demos' default, also for flag: the "
+        "cheapest method stable at the frame's step)",
+    )
+    p.add_argument(
+        "--material",
+        choices=["springs", "membrane"],
+        default=None,
+        help="cloth demos: mass-spring cloth or a continuum membrane + bending (default: springs)",
+    )
+    p.add_argument(
+        "--substeps",
+        default=None,
+        help="cloth demos: steps per frame, or 'auto' for the fewest within the method's stability limit",
+    )
+    p.add_argument("--no-export", action="store_true", help="do not write per-frame files")
+    p.add_argument(
+        "--format",
+        choices=["ply", "usd", "both"],
+        default="ply",
+        help="export: PLY files per frame, one USD stage OUT/NAME.usd, or both (default ply)",
+    )
+    p.add_argument(
+        "--video",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="PATH",
+        help="also write a video of the run at the demo's frame rate: MP4, or GIF if PATH ends in .gif "
+        "(default PATH: OUT/NAME.mp4)",
+    )
+    p.add_argument(
+        "--color-by",
+        choices=["speed", "height", "age", "none"],
+        default=None,
+        help="colour particles and spheres in the pictures and video by this attribute, with a legend "
+        "(default: the demo's choice; 'none': their own colours)",
+    )
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="taichi-anim", description="taichi_anim: particle and cloth animation")
     sub = p.add_subparsers(dest="command")
@@ -51,59 +102,56 @@ def _parser() -> argparse.ArgumentParser:
     )
     d.add_argument("name", nargs="?", default=scenes.DEFAULT_SCENE, help="demo to run (see --list)")
     d.add_argument("--list", action="store_true", help="list the demos and exit")
-    d.add_argument("--frames", type=int, default=None, help="frames to simulate (default: the scene's own)")
     d.add_argument(
         "--out",
         default=None,
         help="output folder (default out/NAME); the previous run's files there are replaced, others kept; "
         "one run at a time per folder",
     )
-    d.add_argument("--arch", choices=runtime.ARCHS, default="cpu", help="Taichi backend (default cpu)")
-    d.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    d.add_argument(
-        "--integrator",
-        choices=sorted([*INTEGRATORS, "auto"]),
-        default=None,
-        help="override the integrator ('auto', the cloth and drape demos' default, also for flag: the "
-        "cheapest method stable at the frame's step)",
-    )
-    d.add_argument(
-        "--material",
-        choices=["springs", "membrane"],
-        default=None,
-        help="cloth demos: mass-spring cloth or a continuum membrane + bending (default: springs)",
-    )
-    d.add_argument(
-        "--substeps",
-        default=None,
-        help="cloth demos: steps per frame, or 'auto' for the fewest within the method's stability limit",
-    )
-    d.add_argument("--no-export", action="store_true", help="do not write per-frame files")
-    d.add_argument(
-        "--format",
-        choices=["ply", "usd", "both"],
-        default="ply",
-        help="export: PLY files per frame, one USD stage OUT/NAME.usd, or both (default ply)",
-    )
-    d.add_argument(
-        "--video",
-        nargs="?",
-        const="",
-        default=None,
-        metavar="PATH",
-        help="also write a video of the run at the demo's frame rate: MP4, or GIF if PATH ends in .gif "
-        "(default PATH: OUT/NAME.mp4)",
-    )
-    d.add_argument(
-        "--color-by",
-        choices=["speed", "height", "age", "none"],
-        default=None,
-        help="colour particles and spheres in the pictures and video by this attribute, with a legend "
-        "(default: the demo's choice; 'none': their own colours)",
-    )
+    _add_run_options(d)
     d.add_argument("--view", action="store_true", help="show a live GGUI window (needs a display and Vulkan)")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_sweep_parser(sub)
     return p
+
+
+def _add_sweep_parser(sub) -> None:
+    w = sub.add_parser(
+        "sweep",
+        help="run a scene over parameter values, each run in its own process and folder, into one table",
+        epilog="every run option given (--frames, --seed, ...) is fixed for all runs; --param NAME=V1,V2 "
+        "sweeps any option of the scene's build or of a run. Exit codes: 0 the sweep ran (failed runs are "
+        "rows of its table), 2 a bad parameter or an unreachable cluster, 3 the output folder cannot be "
+        "written",
+    )
+    w.add_argument("name", help="a demo name (see `demo --list`) or module:function returning a Scene")
+    w.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=V1,V2,...",
+        help="values of one parameter (int, float, true/false, none or text; a JSON list for values "
+        "with commas); repeat for more",
+    )
+    w.add_argument("--list-mode", action="store_true", help="zip the --param lists instead of their product")
+    w.add_argument("--out", default="out/sweep", help="sweep folder: a folder per run, the tables")
+    w.add_argument("--workers", type=int, default=None, help="runs at a time here (default: the cores)")
+    w.add_argument("--threads", type=int, default=None, help="Taichi CPU threads per run")
+    w.add_argument("--cluster", default=None, metavar="ADDR", help="Dask scheduler, e.g. tcp://host:8786")
+    w.add_argument("--timeout", type=float, default=None, metavar="S", help="stop a run after S seconds")
+    w.add_argument("--rerun", action="store_true", help="run again the runs already complete")
+    w.add_argument(
+        "--reference",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="the values of the run each run is compared with (e.g. substeps=64); repeat for more",
+    )
+    w.add_argument("--metric", choices=["rms", "max"], default=None, help="error against the reference")
+    w.add_argument("--no-warmup", action="store_true", help="no short first run to fill the kernel cache")
+    w.add_argument("--quiet", action="store_true", help="no line per finished run")
+    _add_run_options(w)
+    w.set_defaults(seed=None, arch=None, format=None)  # only the options given are fixed
 
 
 SUBSTEP_SCENES = ("cloth", "drape", "flag")
@@ -192,13 +240,64 @@ def _demo(args) -> int:
     return 0
 
 
+def _sweep(args) -> int:
+    params: dict = {}
+    for text in args.param:
+        name, values = sweeps.parse_param(text)
+        if name in params:
+            raise ParameterError(f"--param {name} is given twice")
+        params[name] = values
+    reference = {}
+    for text in args.reference:
+        name, values = sweeps.parse_param(text)
+        if len(values) != 1:
+            raise ParameterError(f"--reference {name} takes one value, got {len(values)}")
+        reference[name] = values[0]
+    fixed = {
+        "frames": args.frames,
+        "arch": args.arch,
+        "seed": args.seed,
+        "integrator": args.integrator,
+        "material": args.material,
+        "export_format": args.format,
+        "video": args.video,
+        "color_by": args.color_by,
+    }
+    if args.substeps is not None:
+        fixed["substeps"] = args.substeps if args.substeps == "auto" else _int("--substeps", args.substeps)
+    if args.no_export:
+        fixed["export"] = False
+    result = sweeps.sweep(
+        args.name,
+        params,
+        mode="list" if args.list_mode else "product",
+        out=args.out,
+        cluster=args.cluster,
+        workers=args.workers,
+        threads=args.threads,
+        timeout=args.timeout,
+        rerun=args.rerun,
+        reference=reference or None,
+        metric=args.metric,
+        warmup=not args.no_warmup,
+        progress=not args.quiet,
+        **{k: v for k, v in fixed.items() if v is not None},
+    )
+    print(sweeps.format_table(result.rows))
+    written = [result.csv, result.parquet, result.plot, result.manifest]
+    print("wrote " + ", ".join(str(p) for p in written if p is not None))
+    for note in result.notes:
+        print(f"taichi-anim sweep: {note}", file=sys.stderr)
+    return 0
+
+
 def main(argv=None) -> int:
     """Run the command line with `argv` (default sys.argv[1:]); returns the exit code (see above)."""
     args = _parser().parse_args(argv)
     if args.command is None:  # bare `taichi-anim` runs the default demo
         args = _parser().parse_args(["demo", *(argv or [])])
     try:
-        return _demo(args)
+        return _sweep(args) if args.command == "sweep" else _demo(args)
     except ParameterError as e:
         return _fail(e, EXIT_PARAMETER)
     except OutputError as e:

@@ -41,6 +41,7 @@ API_MODULES = [
     "taichi_anim.errors",
     "taichi_anim.cli",
     "taichi_anim.stability",
+    "taichi_anim.sweep",
 ]
 
 _FENCE = re.compile(r"^(`{3,}|~{3,})\s*([\w+-]*)")

@@ -49,6 +49,8 @@ LAYERS = [
     ("",),
     # the demo catalogue and the command line
     ("scenes",),
+    # many runs of a scene, each in a process of its own
+    ("sweep",),
     ("cli", "__main__"),
 ]
 
