@@ -234,6 +234,50 @@ def fast_data_oriented_available() -> bool:
 FAST_DATA_ORIENTED = fast_data_oriented_available()
 
 
+# The CompileConfig switches a kernel may turn off for itself (`compile_with`). Taichi's offline cache
+# key includes the config a kernel was compiled with, so each kernel's cache entry stays its own.
+COMPILE_SWITCHES = ("cfg_optimization", "advanced_optimization")
+
+
+def compile_with(**switches):
+    """Decorator, above `@ti.kernel` on a method of a `data_oriented` class: compile that kernel with
+    Taichi's CompileConfig switches set as given (COMPILE_SWITCHES), the rest of the program unchanged.
+
+    Taichi's IR passes grow faster than linearly with a kernel's size: the largest kernels (a solver's
+    unrolled iterations, the fused step with every collider's swept test) spent most of a cold start in
+    them. Each use names the compile time it saves and the run time it costs, measured
+    (docs/guide/performance.md, "Compile time")."""
+    unknown = sorted(set(switches) - set(COMPILE_SWITCHES))
+    if unknown:
+        raise ParameterError(f"compile_with: unknown switch {unknown[0]!r}; choose from {COMPILE_SWITCHES}")
+
+    def mark(kernel):
+        kernel._compile_switches = dict(switches)
+        return kernel
+
+    return mark
+
+
+def _switched(kernel, hidden: str, switches: dict):
+    """A method that calls the kernel bound as `hidden` with the program's compile switches changed for
+    the call (the first call compiles it; later ones pay a few attribute writes). The kernel stays a
+    class attribute under that name, bound the usual way (descriptor, or Taichi's data_oriented)."""
+
+    def call(self, *args):
+        cfg = impl.current_cfg()
+        saved = {name: getattr(cfg, name) for name in switches}
+        for name, value in switches.items():
+            setattr(cfg, name, value)
+        try:
+            return getattr(self, hidden)(*args)
+        finally:
+            for name, value in saved.items():
+                setattr(cfg, name, value)
+
+    call.__name__, call.__qualname__, call.__doc__ = kernel.__name__, kernel.__qualname__, kernel.__doc__
+    return call
+
+
 class _BoundKernel:
     """A class attribute that binds a Taichi kernel to the instance it is read from (what Taichi's own
     `__getattribute__` does for data-oriented classes, as a descriptor instead)."""
@@ -260,12 +304,17 @@ def data_oriented(cls):
     it the way Taichi does. Elsewhere it is plain `ti.data_oriented`.
     """
     cls = ti.data_oriented(cls)
-    if not FAST_DATA_ORIENTED:
-        return cls
-    if "__getattribute__" in vars(cls):
+    if FAST_DATA_ORIENTED and "__getattribute__" in vars(cls):
         del cls.__getattribute__
     for name, attr in list(vars(cls).items()):
-        if hasattr(attr, "_is_wrapped_kernel") and getattr(attr, "_is_classkernel", False):
-            attr._is_staticmethod = False
+        if not (hasattr(attr, "_is_wrapped_kernel") and getattr(attr, "_is_classkernel", False)):
+            continue
+        attr._is_staticmethod = False
+        switches = getattr(attr, "_compile_switches", None)
+        if switches:
+            hidden = f"_{name}_compiled_with_switches"
+            setattr(cls, hidden, _BoundKernel(attr) if FAST_DATA_ORIENTED else attr)
+            setattr(cls, name, _switched(attr, hidden, switches))
+        elif FAST_DATA_ORIENTED:
             setattr(cls, name, _BoundKernel(attr))
     return cls

@@ -62,3 +62,60 @@ def test_fast_path_only_on_verified_taichi_versions(monkeypatch):
     )
     monkeypatch.setattr(ti, "__version__", (9, 9, 9))
     assert not runtime.fast_data_oriented_available()
+
+
+@pytest.mark.parametrize("fast", [True, False])
+def test_compile_with_sets_the_switch_for_that_kernel_only(monkeypatch, fast):
+    """A kernel marked compile_with(cfg_optimization=False) compiles (and runs) with that switch off,
+    on the descriptor path and on Taichi's own data_oriented; other kernels and later code see the
+    program's setting; the result is the same arithmetic."""
+    import taichi as ti
+    from taichi.lang import impl
+    from taichi.lang.kernel_impl import Kernel
+
+    from taichi_anim import runtime
+
+    monkeypatch.setattr(runtime, "FAST_DATA_ORIENTED", fast and runtime.FAST_DATA_ORIENTED)
+    seen: dict[str, bool] = {}
+    launch = Kernel.launch_kernel
+
+    def record(kernel, *args, **kwargs):
+        seen[kernel.func.__name__] = impl.current_cfg().cfg_optimization
+        return launch(kernel, *args, **kwargs)
+
+    monkeypatch.setattr(Kernel, "launch_kernel", record)
+
+    @runtime.data_oriented
+    class Sums:
+        def __init__(self):
+            self.out = ti.field(ti.i32, 2)
+
+        @runtime.compile_with(cfg_optimization=False)
+        @ti.kernel
+        def switched(self, n: ti.i32):
+            for i in range(n):
+                ti.atomic_add(self.out[0], i)
+
+        @ti.kernel
+        def plain(self, n: ti.i32):
+            for i in range(n):
+                ti.atomic_add(self.out[1], i)
+
+    before = impl.current_cfg().cfg_optimization
+    sums = Sums()
+    sums.switched(100)
+    sums.plain(100)
+    assert seen == {"switched": False, "plain": before}
+    assert impl.current_cfg().cfg_optimization == before  # restored after the call
+    assert sums.out.to_numpy().tolist() == [4950, 4950]  # sum of 0..99
+    with pytest.raises(ti.TaichiSyntaxError, match="missing"):
+        sums.switched()  # a failing call restores the switch too
+    assert impl.current_cfg().cfg_optimization == before
+
+
+def test_compile_with_refuses_unknown_switches():
+    from taichi_anim import runtime
+    from taichi_anim.errors import ParameterError
+
+    with pytest.raises(ParameterError, match="fast_math"):
+        runtime.compile_with(fast_math=False)

@@ -36,7 +36,7 @@ import taichi as ti
 
 from .. import validate
 from ..linalg import LinearSolver, LinearSolverKind, make_linear_solver
-from ..runtime import data_oriented
+from ..runtime import compile_with, data_oriented
 from ..stability import StabilityRegion
 from .base import Integrator
 from .implicit_system import ImplicitSystem
@@ -236,6 +236,9 @@ class IntegratorImplicitEuler(Integrator):
         self._residual(model, system, xi, vi, alpha, t, h)
         return float(self.merit[None])  # one scalar read per trial point
 
+    # Every term's linearisation loops and the row assembly in one kernel: without Taichi's advanced IR
+    # passes the flag compiles 9.6 s faster cold (19.5 -> 9.9 s) at the same ms per frame.
+    @compile_with(advanced_optimization=False)
     @ti.kernel
     def _assemble(
         self,
@@ -254,6 +257,8 @@ class IntegratorImplicitEuler(Integrator):
             if ti.static(newton):
                 self.dv[i] = ti.Vector.zero(float, 3)
 
+    # As _assemble: the same passes cost compile time only.
+    @compile_with(advanced_optimization=False)
     @ti.kernel
     def _newton_assemble(
         self,

@@ -11,7 +11,7 @@ or |r| <= atol (or the iteration cap) is made at the start of an iteration.
 
 import taichi as ti
 
-from ..runtime import data_oriented
+from ..runtime import compile_with, data_oriented
 from .base import LinearSolver
 
 START, PQ0, PQ1, R0, R1 = range(5)  # R slots hold (r.r, r.z, -); the START slot (b.b, r.r, r.z)
@@ -66,6 +66,9 @@ class LinearSolverCG(LinearSolver):
                 # The residual of "iteration -1" for the first stopping test and beta.
                 self.store(R1, blk, ti.Vector([s[1], s[2], 0.0]))
 
+    # check_every unrolled iterations, each inlining every term's product: the CFG passes took 24 s of
+    # the flag's 38 s cold compile, for no run-time gain (81 ms/frame either way).
+    @compile_with(cfg_optimization=False)
     @ti.kernel
     def _iterate(
         self,

@@ -9,7 +9,7 @@ An iteration is two parallel loops: the residual with its norm, then the stoppin
 
 import taichi as ti
 
-from ..runtime import data_oriented
+from ..runtime import compile_with, data_oriented
 from .base import LinearSolver
 
 START, R0, R1 = 0, 3, 4
@@ -40,6 +40,8 @@ class LinearSolverJacobi(LinearSolver):
                     s[0] += b.dot(b)
                 self.store(START, blk, s)
 
+    # Unrolled iterations, as in LinearSolverCG._iterate: the CFG passes cost compile time only.
+    @compile_with(cfg_optimization=False)
     @ti.kernel
     def _iterate(
         self,

@@ -42,7 +42,7 @@ from taichi.lang import impl
 
 from .. import validate
 from ..errors import ParameterError
-from ..runtime import backend_name, data_oriented, float_dtype, serial_loops
+from ..runtime import backend_name, compile_with, data_oriented, float_dtype, serial_loops
 from .bounds import INV_DIR_PARALLEL, aabb_overlap, aabb_point_distance_sq, aabb_ray, aabb_surface_area
 from .prefix_sum import PrefixSum
 
@@ -195,6 +195,8 @@ class BVH:
     # ---------------------------------------------------------------------------------------------
     # build
 
+    # A large serial build: Taichi's CFG passes cost compile time only (see SelfContact._query).
+    @compile_with(cfg_optimization=False)
     @ti.kernel
     def _build(self, n: ti.i32):
         self._morton(n)

@@ -1,0 +1,125 @@
+"""Cold and warm starts of every demo: wall seconds of `taichi-anim demo NAME --frames 3 --no-export` with
+an empty Taichi offline cache (cold) and again with the cache that run filled (warm), the compile seconds
+run.json records for each, and ms per frame of a longer warm run (the run-time side of a compile change).
+With `--before REV` the same figures for another commit (a `git archive` copy), demo by demo in turn.
+
+Each run is a fresh process with its own cache folder (TI_OFFLINE_CACHE_FILE_PATH), so nothing depends on
+what an earlier run left in ~/.cache/taichi.
+
+    .venv/bin/python benchmarks/compile_cold_warm.py [--before REV] [--demos NAME ...] [--quick]
+"""
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from harness import Page, parse_args  # noqa: E402
+
+from taichi_anim.scenes import SCENES  # noqa: E402
+
+START_FRAMES = 3  # a first run as a new user makes it: a few frames, no files
+RUN_FRAMES = 30  # the run-time figure: enough frames that the first frame's cost is small
+
+
+def demo(tree: Path, name: str, frames: int, cache: Path, out: Path) -> dict:
+    """One run of demo `name` from the engine in `tree`: wall seconds and run.json's timings."""
+    env = dict(os.environ, PYTHONPATH=str(tree), TI_OFFLINE_CACHE_FILE_PATH=str(cache))
+    cmd = [sys.executable, "-m", "taichi_anim", "demo", name, "--frames", str(frames), "--no-export"]
+    t0 = time.perf_counter()
+    run = subprocess.run([*cmd, "--quiet", "--out", str(out)], env=env, cwd=tree, capture_output=True)
+    wall = time.perf_counter() - t0
+    if run.returncode:
+        raise RuntimeError(f"{name} ({tree}): {run.stderr.decode()[-2000:]}")
+    timings = json.loads((out / "run.json").read_text())["timings"]
+    return {"wall_s": wall, "compile_s": timings.get("compile_s"), "ms_per_frame": timings["ms_per_frame"]}
+
+
+def measure(tree: Path, name: str, tmp: Path, run_frames: int) -> dict:
+    """Cold start, warm start and a warm run's ms per frame of demo `name` (engine in `tree`)."""
+    cache, out = tmp / "cache", tmp / "out"
+    cold = demo(tree, name, START_FRAMES, cache, out)
+    warm = demo(tree, name, START_FRAMES, cache, out)
+    steady = demo(tree, name, run_frames, cache, out)
+    return {"cold": cold, "warm": warm, "ms_per_frame": steady["ms_per_frame"]}
+
+
+def git_tree(rev: str, into: Path) -> Path:
+    """A copy of commit `rev`'s files in `into` (nothing in the repository changes)."""
+    into.mkdir()
+    archive = subprocess.run(["git", "archive", rev], cwd=ROOT, check=True, capture_output=True)
+    subprocess.run(["tar", "-x", "-C", str(into)], input=archive.stdout, check=True)
+    return into
+
+
+def row(label: str, name: str, m: dict) -> list:
+    cold, warm = m["cold"], m["warm"]
+    return [
+        name,
+        label,
+        f"{cold['wall_s']:.1f}",
+        f"{warm['wall_s']:.1f}",
+        f"{cold['wall_s'] - warm['wall_s']:.1f}",
+        f"{cold['compile_s']:.2f}",
+        f"{warm['compile_s']:.2f}",
+        f"{m['ms_per_frame']:.2f}",
+    ]
+
+
+def main(argv=None) -> int:
+    def options(p):
+        p.add_argument("--before", default=None, help="also measure this commit (a git archive copy)")
+        p.add_argument("--demos", nargs="*", default=None, help="default: every demo")
+
+    args = parse_args(__doc__, argv, options)
+    names = args.demos or (["cloth", "fountain"] if args.quick else list(SCENES))
+    run_frames = 5 if args.quick else RUN_FRAMES
+    res: dict = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        trees = {"after": ROOT}
+        if args.before:
+            trees = {"before": git_tree(args.before, Path(tmp) / "before"), "after": ROOT}
+        for name in names:
+            for label, tree in trees.items():
+                work = Path(tempfile.mkdtemp(dir=tmp))
+                res[(name, label)] = m = measure(tree, name, work, run_frames)
+                print(f"{name} {label}: {row(label, name, m)[2:]}", flush=True)
+    page = Page(
+        "compile_cold_warm",
+        "Cold and warm starts per demo",
+        args,
+        {
+            "start": f"`taichi-anim demo NAME --frames {START_FRAMES} --no-export`, wall seconds of the process",
+            "cold": "empty offline cache (a fresh TI_OFFLINE_CACHE_FILE_PATH folder)",
+            "warm": "the same command again, with the cache the cold run filled",
+            "compile": "run.json timings.compile_s: kernels compiled or loaded while frames ran",
+            "run time": f"ms per frame of a warm {run_frames}-frame run (run.json timings.ms_per_frame)",
+            "before": args.before or "not measured",
+        },
+    )
+    page.table(
+        "Per demo",
+        [
+            "demo",
+            "engine",
+            "cold s",
+            "warm s",
+            "cold - warm s",
+            "compile cold s",
+            "compile warm s",
+            "ms/frame",
+        ],
+        [row(label, name, res[(name, label)]) for name in names for label in trees],
+    )
+    page.write({f"{n} {label}": m for (n, label), m in res.items()})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
