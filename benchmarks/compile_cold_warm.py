@@ -95,7 +95,7 @@ def main(argv=None) -> int:
         "Cold and warm starts per demo",
         args,
         {
-            "start": f"`taichi-anim demo NAME --frames {START_FRAMES} --no-export`, wall seconds of the process",
+            "start": f"`taichi-anim demo NAME --frames {START_FRAMES} --no-export`, process wall s",
             "cold": "empty offline cache (a fresh TI_OFFLINE_CACHE_FILE_PATH folder)",
             "warm": "the same command again, with the cache the cold run filled",
             "compile": "run.json timings.compile_s: kernels compiled or loaded while frames ran",
