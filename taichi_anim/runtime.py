@@ -240,42 +240,53 @@ COMPILE_SWITCHES = ("cfg_optimization", "advanced_optimization")
 
 
 def compile_with(**switches):
-    """Decorator, above `@ti.kernel` on a method of a `data_oriented` class: compile that kernel with
-    Taichi's CompileConfig switches set as given (COMPILE_SWITCHES), the rest of the program unchanged.
+    """Decorator, above `@ti.kernel`: compile that kernel with Taichi's CompileConfig switches set as given
+    (COMPILE_SWITCHES), the rest of the program unchanged.
 
     Taichi's IR passes grow faster than linearly with a kernel's size: the largest kernels (a solver's
     unrolled iterations, the fused step with every collider's swept test) spent most of a cold start in
     them. Each use names the compile time it saves and the run time it costs, measured
-    (docs/guide/performance.md, "Compile time")."""
+    (docs/guide/performance.md, "Compile time").
+
+    Only the launch that compiles an instance runs with the switches (Taichi keeps an instance's cache
+    key once computed, so later launches find it under any config): other launches pay one set lookup.
+    The hook sits on Taichi's private `Kernel.launch_kernel`, so it is on only for the Taichi versions
+    the fast data_oriented path is verified for; elsewhere the kernel compiles as before."""
     unknown = sorted(set(switches) - set(COMPILE_SWITCHES))
     if unknown:
         raise ParameterError(f"compile_with: unknown switch {unknown[0]!r}; choose from {COMPILE_SWITCHES}")
 
     def mark(kernel):
-        kernel._compile_switches = dict(switches)
+        primal = getattr(kernel, "_primal", None)
+        if tuple(ti.__version__) in FAST_DATA_ORIENTED_VERSIONS and primal is not None:
+            _switch_compiling_launches(primal, dict(switches))
         return kernel
 
     return mark
 
 
-def _switched(kernel, hidden: str, switches: dict):
-    """A method that calls the kernel bound as `hidden` with the program's compile switches changed for
-    the call (the first call compiles it; later ones pay a few attribute writes). The kernel stays a
-    class attribute under that name, bound the usual way (descriptor, or Taichi's data_oriented)."""
+def _switch_compiling_launches(primal, switches: dict) -> None:
+    """Make the Taichi Kernel `primal` compile each of its instances with `switches` set."""
+    compiled: set[int] = set()
 
-    def call(self, *args):
+    def launch_kernel(t_kernel, *args):
+        # Looked up on the class at each call, so a wrapper installed there (CompileClock) still runs.
+        launch = type(primal).launch_kernel
+        if id(t_kernel) in compiled:
+            return launch(primal, t_kernel, *args)
         cfg = impl.current_cfg()
         saved = {name: getattr(cfg, name) for name in switches}
         for name, value in switches.items():
             setattr(cfg, name, value)
         try:
-            return getattr(self, hidden)(*args)
+            out = launch(primal, t_kernel, *args)
         finally:
             for name, value in saved.items():
                 setattr(cfg, name, value)
+        compiled.add(id(t_kernel))
+        return out
 
-    call.__name__, call.__qualname__, call.__doc__ = kernel.__name__, kernel.__qualname__, kernel.__doc__
-    return call
+    primal.launch_kernel = launch_kernel  # this kernel only: an attribute of the instance
 
 
 class _BoundKernel:
@@ -304,17 +315,12 @@ def data_oriented(cls):
     it the way Taichi does. Elsewhere it is plain `ti.data_oriented`.
     """
     cls = ti.data_oriented(cls)
-    if FAST_DATA_ORIENTED and "__getattribute__" in vars(cls):
+    if not FAST_DATA_ORIENTED:
+        return cls
+    if "__getattribute__" in vars(cls):
         del cls.__getattribute__
     for name, attr in list(vars(cls).items()):
-        if not (hasattr(attr, "_is_wrapped_kernel") and getattr(attr, "_is_classkernel", False)):
-            continue
-        attr._is_staticmethod = False
-        switches = getattr(attr, "_compile_switches", None)
-        if switches:
-            hidden = f"_{name}_compiled_with_switches"
-            setattr(cls, hidden, _BoundKernel(attr) if FAST_DATA_ORIENTED else attr)
-            setattr(cls, name, _switched(attr, hidden, switches))
-        elif FAST_DATA_ORIENTED:
+        if hasattr(attr, "_is_wrapped_kernel") and getattr(attr, "_is_classkernel", False):
+            attr._is_staticmethod = False
             setattr(cls, name, _BoundKernel(attr))
     return cls

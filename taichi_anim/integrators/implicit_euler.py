@@ -236,9 +236,10 @@ class IntegratorImplicitEuler(Integrator):
         self._residual(model, system, xi, vi, alpha, t, h)
         return float(self.merit[None])  # one scalar read per trial point
 
-    # Every term's linearisation loops and the row assembly in one kernel: without Taichi's advanced IR
-    # passes the flag compiles 9.6 s faster cold (19.5 -> 9.9 s) at the same ms per frame.
-    @compile_with(advanced_optimization=False)
+    # Every term's linearisation loops and the row assembly in one kernel: without Taichi's CFG passes
+    # the flag compiles 7.7 s faster cold (19.5 -> 11.8 s). Turning off all advanced passes saved 9.6 s
+    # but cost 1.5-2 % per frame on the flag and moving_mesh.
+    @compile_with(cfg_optimization=False)
     @ti.kernel
     def _assemble(
         self,
@@ -258,7 +259,7 @@ class IntegratorImplicitEuler(Integrator):
                 self.dv[i] = ti.Vector.zero(float, 3)
 
     # As _assemble: the same passes cost compile time only.
-    @compile_with(advanced_optimization=False)
+    @compile_with(cfg_optimization=False)
     @ti.kernel
     def _newton_assemble(
         self,
