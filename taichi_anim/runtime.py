@@ -267,6 +267,8 @@ def compile_with(**switches):
 
 def _switch_compiling_launches(primal, switches: dict) -> None:
     """Make the Taichi Kernel `primal` compile each of its instances with `switches` set."""
+    # ids of the instances already compiled. After a ti.init an id may come back for a new instance,
+    # which would then compile without the switches: slower to compile, never a different result.
     compiled: set[int] = set()
 
     def launch_kernel(t_kernel, *args):

@@ -131,7 +131,8 @@ class Integrator:
         model.element_pass(self.caches, xi, vi, t)
 
     # The fused step inlines every collider's swept test: Taichi's CFG passes took most of its compile
-    # (fountain 10.6 -> 4.7 s, moving_mesh 27.5 -> 10.1 s cold) and the run time did not change.
+    # (fountain 10.6 -> 4.7 s, moving_mesh 27.5 -> 10.1 s cold); per frame the fountain did not change
+    # and moving_mesh ran ~1 % slower (benchmarks/results/compile_cold_warm_subset.md: +3 % in all).
     @compile_with(cfg_optimization=False)
     @ti.kernel
     def _final(

@@ -67,7 +67,7 @@ class LinearSolverCG(LinearSolver):
                 self.store(R1, blk, ti.Vector([s[1], s[2], 0.0]))
 
     # check_every unrolled iterations, each inlining every term's product: the CFG passes took 24 s of
-    # the flag's 38 s cold compile, for no run-time gain (81 ms/frame either way).
+    # the flag's 38 s cold compile and bought no run time (81 ms/frame either way).
     @compile_with(cfg_optimization=False)
     @ti.kernel
     def _iterate(
