@@ -81,6 +81,13 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
         "(default PATH: OUT/NAME.mp4)",
     )
     p.add_argument(
+        "--size-buckets",
+        choices=["on", "off"],
+        default=None,
+        help="allocate arrays in power-of-two capacity buckets, so that another size of the scene reuses "
+        "the compiled kernels (default: off for demo, on for sweep)",
+    )
+    p.add_argument(
         "--color-by",
         choices=["speed", "height", "age", "none"],
         default=None,
@@ -185,7 +192,7 @@ def _demo(args) -> int:
     try:
         with warnings.catch_warnings(record=True) as caught:  # e.g. "gpu" fell back to the CPU: one line
             warnings.simplefilter("always", RuntimeWarning)
-            runtime.init(args.arch)
+            runtime.init(args.arch, size_buckets=args.size_buckets == "on")
     except RuntimeError as e:  # e.g. --arch cuda on a machine without CUDA
         print(f"taichi-anim: error: {e}", file=sys.stderr)
         return 2
@@ -263,6 +270,8 @@ def _sweep(args) -> int:
         "video": args.video,
         "color_by": args.color_by,
     }
+    if args.size_buckets is not None:  # unset: the worker's default (on), and the same runs as the API's
+        fixed["size_buckets"] = args.size_buckets == "on"
     if args.substeps is not None:
         fixed["substeps"] = args.substeps if args.substeps == "auto" else _int("--substeps", args.substeps)
     if args.no_export:

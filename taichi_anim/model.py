@@ -9,6 +9,7 @@ from types import MappingProxyType
 import numpy as np
 import taichi as ti
 
+from . import capacity
 from .bodies import KINDS, MODEL_PARTS
 from .collision.motion import attachment_codes
 from .runtime import data_oriented, np_float, serial_loops
@@ -37,6 +38,8 @@ class Model(*MODEL_PARTS):
         self_contact=None,
         attachments=(),
     ):
+        # Capacity buckets (capacity.py): arrays sized to a power of two, live counts read at run time.
+        self.size_buckets = capacity.enabled()
         # Each kind's arrays, from the builder's parts (bodies: {kind name: init_model's arguments}).
         self.kinds = KINDS
         for kind in KINDS:
@@ -63,11 +66,15 @@ class Model(*MODEL_PARTS):
         # Springs (cloth) are one element term among others (membrane, bending, aerodynamics).
         self.springs = None
         if springs is not None and len(springs["pairs"]):
-            self.springs = Springs(n, **springs)
+            self.springs = Springs(n, **springs, model=self)
         self.spring_count = 0 if self.springs is None else self.springs.count
         elements = ([self.springs] if self.springs is not None else []) + list(element_terms or ())
         # Pointwise terms first: the order in which solvers sum forces (and the settings list).
         self.point_terms = tuple(terms)
+        for t in self.point_terms:  # a term that keeps run-time parameters in fields allocates them now
+            bind = getattr(t, "bind", None)
+            if bind is not None:
+                bind(self)
         self.element_terms = tuple(elements)
         self.terms = self.point_terms + self.element_terms
         self.settings["forces"] = [t.settings() for t in self.terms]
@@ -85,8 +92,17 @@ class Model(*MODEL_PARTS):
         # with colliders: parallel loops pay from ~2e4 particles (benchmarks/particles.py) and from ~128^2
         # mass-spring cloth (benchmarks/results/layout.md: 0.59x at 64^2, 1.01x at 128^2, 1.38x at 256^2).
         entries = sum(t.entry_count for t in self.element_terms)
-        self.work = n + entries  # the size that decides fused frames (Stepper.frame_mode)
-        self.serial = serial_loops(n + entries // 8)
+        # With buckets the choices go by capacity, so that every size of a bucket compiles the same kernels.
+        sized = self.particle_capacity if self.size_buckets else n
+        self.work = sized + entries  # the size that decides fused frames (Stepper.frame_mode)
+        self.serial = serial_loops(sized + entries // 8)
+
+    def new_field(self, owner, role: str, dtype, shape, dims: tuple = ()):
+        """A field for one of this model's parts or solvers (`owner` keeps it): from the pool under
+        capacity buckets, so that a later scene of the same kind gets it back (capacity.take), else new."""
+        if self.size_buckets:
+            return capacity.take(owner, role, dtype, shape, dims)
+        return capacity.make(dtype, shape, dims)
 
     def state(self) -> State:
         """A fresh State at t = 0: every kind's start (the builder's particles in place, every emitter
@@ -222,5 +238,5 @@ class _ForceProbe:
         self, model: ti.template(), xf: ti.template(), vf: ti.template(), ff: ti.template(), t: float
     ):
         model.element_pass(self.caches, xf, vf, t)
-        for i in range(model.particle_count):
+        for i in range(model.live_particles()):
             ff[i] = model.force(i, xf[i], vf[i], t) + model.element_force(self.caches, i)

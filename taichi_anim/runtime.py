@@ -18,7 +18,7 @@ import warnings
 import taichi as ti
 from taichi.lang import impl
 
-from . import validate
+from . import capacity, validate
 from .errors import ParameterError
 
 ARCHS = ("cpu", "gpu", "cuda", "vulkan", "auto")
@@ -123,6 +123,7 @@ def init(
     debug: bool = False,
     cpu_threads: int | None = None,
     offline_cache: bool = True,
+    size_buckets: bool | None = None,
     **taichi_options,
 ) -> str:
     """Initialise Taichi and return the name of the backend that actually runs.
@@ -132,10 +133,14 @@ def init(
     with a RuntimeWarning saying why; a Vulkan driver that runs on the CPU does not count as a GPU).
     `arch_choice()` records what was asked, what runs and why. precision: "f32" or "f64" for every
     float field the engine allocates. cpu_threads pins the CPU thread count (1 makes float atomics
-    reproducible run to run). Calling it again resets Taichi: fields allocated before become invalid.
+    reproducible run to run). size_buckets: allocate the models finalised from now on in capacity
+    buckets, so that another size of a scene compiles nothing new (capacity.py; None: the environment's
+    TAICHI_ANIM_SIZE_BUCKETS, off if unset). Calling it again resets Taichi: fields allocated before
+    become invalid.
     """
     global _choice
     validate.choice("arch", arch, ARCHS)
+    capacity.set_enabled(size_buckets)
     validate.choice("precision", precision, PRECISIONS)
     if arch in ("gpu", "auto"):
         chosen, reason = _pick_gpu(arch)

@@ -258,8 +258,8 @@ def frequency(model, x, v=None, t: float = 0.0, *, blocks: bool | None = None) -
 
 def state_frequency(model, state) -> Frequency:
     """frequency() at the state's positions and velocities and time."""
-    x = state.particle_x.to_numpy()
-    v = state.particle_v.to_numpy()
+    x = state.positions()
+    v = state.velocities()
     return frequency(model, x, v, state.time)
 
 

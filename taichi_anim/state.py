@@ -42,13 +42,14 @@ class State(*STATE_PARTS):
         # code) record with its value, and the limits the kernel tests against (written by the Stepper's
         # Watchdog when they change). The names keep "nonfinite" for the solvers that count into them.
         self.watch_bounds = bounds_compiled()  # compile-time: TAICHI_ANIM_WATCHDOG_BOUNDS=0 leaves them out
-        self.nonfinite_count = ti.field(ti.i32, ())
-        self.nonfinite_step = ti.field(ti.i32, ())
-        self.watch_particle = ti.field(ti.i32, ())
-        self.watch_claim = ti.field(ti.i32, ())
-        self.watch_record = ti.Vector.field(3, ti.i32, ())
-        self.watch_value = ti.field(float, ())
-        self.watch_limit = ti.Vector.field(7, float, ())
+        watch = model.new_field  # pooled under capacity buckets, like every array of the state
+        self.nonfinite_count = watch(self, "nonfinite_count", ti.i32, ())
+        self.nonfinite_step = watch(self, "nonfinite_step", ti.i32, ())
+        self.watch_particle = watch(self, "watch_particle", ti.i32, ())
+        self.watch_claim = watch(self, "watch_claim", ti.i32, ())
+        self.watch_record = watch(self, "watch_record", ti.i32, (), (3,))
+        self.watch_value = watch(self, "watch_value", float, ())
+        self.watch_limit = watch(self, "watch_limit", float, (), (7,))
         self.watch_limit[None] = [-math.inf] * 3 + [math.inf] * 4
         self.watch_bounds_now = None  # (lo, hi, speed) the field holds, for messages
         self.watch_version = -1

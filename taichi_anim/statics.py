@@ -140,7 +140,7 @@ def solve_static(
     weight = np.maximum(masses, 1e-300) * G
     mass_norm = float(np.linalg.norm(masses[free]))
     mass_min = float(masses[free].min()) if free.any() else 0.0
-    x = state.particle_x.to_numpy().astype(np.float64)
+    x = state.positions()
     energy = _potential(model, x) if line_search else None
     roundoff = 1e3 * float(np.finfo(np_float()).eps)  # relative noise of an energy sum
     zero = np.zeros((n, 3))
@@ -238,8 +238,8 @@ def solve_static(
             backtracks += a < 1.0
         x, e0, scale0 = step
         h = min(2.0 * h, h_max) if a == 1.0 else max(h * a, 1e-6)
-    state.particle_x.from_numpy(x.astype(np_float()))
-    state.particle_v.from_numpy(zero_f)
+    state.particle_x.from_numpy(model.padded(x))
+    state.particle_v.from_numpy(model.padded(zero))
     return {
         "iterations": k,
         "converged": residual <= tol,

@@ -316,9 +316,9 @@ def scene_bounds(model, state, separation_speed: float = 0.0) -> dict:
     asked, never its class: colliders for their points over their keyframes and their speed, terms for
     the speed and uniform acceleration they supply and the energy they hold (terms/base.py)."""
     alive = state.alive_mask()
-    x_all = state.particle_x.to_numpy().astype(np.float64)
+    x_all = state.positions()
     x = x_all[alive]
-    v = state.particle_v.to_numpy().astype(np.float64)[alive]
+    v = state.velocities()[alive]
     points = [x.reshape(-1, 3)]
     speeds = [float(np.max(np.linalg.norm(v, axis=1), initial=0.0)), separation_speed]
     for c in model.colliders:
@@ -382,14 +382,14 @@ def energy_function(model):
         return None
     potentials = [t for t in model.terms if t.energy_kind == "potential"]
     masses = model.particle_masses()
-    out = ti.field(ti.f64, ())
+    out = model.new_field(model, "kinetic_energy", ti.f64, ())
 
     def energy(state) -> float:
         out[None] = 0.0
         _kinetic_energy(model, state, out)
         e = float(out[None])
         if potentials:
-            x = state.particle_x.to_numpy().astype(np.float64)
+            x = state.positions()
             e += sum(float(t.energy(x, masses)) for t in potentials)
         return e
 
@@ -398,7 +398,7 @@ def energy_function(model):
 
 @ti.kernel
 def _kinetic_energy(model: ti.template(), state: ti.template(), out: ti.template()):
-    for i in range(model.particle_count):
+    for i in range(model.live_particles()):
         v = state.particle_v[i]
         out[None] += ti.cast(0.5 * model.mass(i) * v.norm_sqr(), ti.f64)
 

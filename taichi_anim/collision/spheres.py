@@ -299,7 +299,7 @@ class ContactSpheres:
     def after_substep(self, model, state, h: float, step: int) -> None:
         """Resolve contacts after a step of size h (state holds its prediction, ending at time + h)."""
         death = state.particle_death if state.has_lifetimes else None
-        self.neighbors.build(state.particle_x, death=death, t=state.time + h)
+        self.neighbors.build(state.particle_x, model.particle_count, death=death, t=state.time + h)
         a, b = self.sides
         for it in range(self.iterations):
             sweep = self.sweeps[it if it < 2 else 2 + it % 2]
@@ -445,7 +445,7 @@ class ContactSpheres:
         in the current state: the measure of how well the last solve separated the spheres. It rebuilds
         the neighbour structure (the solver's scratch), so call it between steps."""
         death = state.particle_death if state.has_lifetimes else None
-        self.neighbors.build(state.particle_x, death=death, t=state.time)
+        self.neighbors.build(state.particle_x, model.particle_count, death=death, t=state.time)
         self._overlaps(model, state)
         return float(self.overlap[None]), int(self.contact_count[None]) // 2
 

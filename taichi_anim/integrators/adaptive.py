@@ -52,7 +52,7 @@ class IntegratorAdaptive(Integrator):
         self.h_min = validate.positive("h_min", h_min)
         self.max_rejected = validate.count("max_rejected", max_rejected, 0)
         self.xs = self.vs = None
-        self.diff = ti.field(float, ())
+        self.diff = None  # 0-d: the step-doubling difference (made by _allocate)
         self.accepted = 0
         self.rejected = 0
 
@@ -76,7 +76,8 @@ class IntegratorAdaptive(Integrator):
 
     def _allocate(self, model) -> None:
         self.base.bind(model)
-        self.xs, self.vs = scratch_pairs(model.particle_count, 3)
+        self.diff = model.new_field(self, "adaptive_diff", float, ())
+        self.xs, self.vs = scratch_pairs(model, self, 3)
 
     def advance_step(self, model, state, dt: float) -> None:
         xs, vs = self.xs, self.vs
@@ -131,7 +132,7 @@ class IntegratorAdaptive(Integrator):
         ta: float,
     ):
         ti.loop_config(serialize=model.serial)
-        for i in range(model.particle_count):
+        for i in range(model.live_particles()):
             if model.alive(state, i, ta):
                 d = ti.max(ti.abs(xa[i] - xb[i]).max(), ti.abs(va[i] - vb[i]).max())
                 ti.atomic_max(self.diff[None], d)

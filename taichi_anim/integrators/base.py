@@ -151,7 +151,7 @@ class Integrator:
     ):
         self.final_pass(model, xi, vi, t, h)  # reads the whole start state before anything is overwritten
         ti.loop_config(serialize=model.serial)
-        for i in range(model.particle_count):
+        for i in range(model.live_particles()):
             if model.alive(state, i, ta):
                 x0 = xi[i]
                 v0 = vi[i]
@@ -179,7 +179,7 @@ class Integrator:
         for k in range(count):
             t = t0 + k * h
             self.final_pass(model, x, v, t, h)
-            for i in range(model.particle_count):
+            for i in range(model.live_particles()):
                 x0 = x[i]
                 v0 = v[i]
                 x1, v1 = self.update(model, i, x0, v0, t, h)
@@ -197,7 +197,7 @@ class Integrator:
         step: ti.i32,
     ):
         ti.loop_config(serialize=model.serial)
-        for i in range(model.particle_count):
+        for i in range(model.live_particles()):
             if model.alive(state, i, ta):
                 x0, v0 = state.particle_x[i], state.particle_v[i]
                 finish_particle(model, state, self.collision_mode, i, x0, v0, x1f[i], v1f[i], ta, h, step)
@@ -218,15 +218,15 @@ class Integrator:
         ta: float,
     ):
         ti.loop_config(serialize=model.serial)
-        for i in range(model.particle_count):
+        for i in range(model.live_particles()):
             if model.alive(state, i, ta):
                 xd[i] = xs[i]
                 vd[i] = vs[i]
 
 
-def scratch_pairs(n: int, pairs: int) -> tuple[list, list]:
-    """`pairs` (x, v) field pairs of n particles (adaptive methods' work and candidate states)."""
+def scratch_pairs(model, owner, pairs: int) -> tuple[list, list]:
+    """`pairs` (x, v) particle field pairs for `owner` (adaptive methods' work and candidate states)."""
     return (
-        [ti.Vector.field(3, float, n) for _ in range(pairs)],
-        [ti.Vector.field(3, float, n) for _ in range(pairs)],
+        [model.particle_array(owner, f"scratch_x{k}", dims=(3,)) for k in range(pairs)],
+        [model.particle_array(owner, f"scratch_v{k}", dims=(3,)) for k in range(pairs)],
     )

@@ -177,8 +177,8 @@ def frame_error(stepper, start, scratch, frame_dt: float, n: int, order: int) ->
             stepper.check(s)
     except DivergenceError:
         return math.inf
-    xa = a.particle_x.to_numpy().astype(np.float64)
-    xb = b.particle_x.to_numpy().astype(np.float64)
+    xa = a.positions()
+    xb = b.positions()
     diff = float(np.abs(xa - xb).max()) if len(xa) else 0.0
     return diff * 2**order / (2**order - 1) if math.isfinite(diff) else math.inf
 

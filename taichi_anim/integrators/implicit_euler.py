@@ -97,7 +97,7 @@ class IntegratorImplicitEuler(Integrator):
         self.system = None
         self.last_solve = None
         self.last_newton = None
-        self.merit = ti.field(float, ())
+        self.merit = None  # 0-d: the line search's merit (made by _allocate)
         self._step = None
 
     @property
@@ -117,14 +117,15 @@ class IntegratorImplicitEuler(Integrator):
         return out
 
     def _allocate(self, model) -> None:
+        self.merit = model.new_field(self, "newton_merit", float, ())
         self.system = ImplicitSystem(model, self.caches) if model.coupled else None
         if self.system is not None:
-            self.linear_solver.bind(self.system.size)
+            self.linear_solver.bind(self.system.size, self.system.capacity, model.new_field)
             if self.newton:
-                n = model.particle_count
-                self.dv = ti.Vector.field(3, float, n)  # v_k - v0 of the current iterate
-                self.xt = ti.Vector.field(3, float, n)  # the iterate or trial point (x, v)
-                self.vt = ti.Vector.field(3, float, n)
+                vec = model.particle_array
+                self.dv = vec(self, "newton_dv", dims=(3,))  # v_k - v0 of the current iterate
+                self.xt = vec(self, "newton_xt", dims=(3,))  # the iterate or trial point (x, v)
+                self.vt = vec(self, "newton_vt", dims=(3,))
                 self.mass_root = math.sqrt(float(np.sum(model.particle_masses())))
 
     def run_carry(self) -> dict:
@@ -253,7 +254,7 @@ class IntegratorImplicitEuler(Integrator):
     ):
         system.linearize(xi, vi, t, h)
         ti.loop_config(serialize=model.serial)
-        for i in range(model.particle_count):
+        for i in range(model.live_particles()):
             system.assemble_row(i, xi, vi, t, h)
             if ti.static(newton):
                 self.dv[i] = ti.Vector.zero(float, 3)
@@ -273,7 +274,7 @@ class IntegratorImplicitEuler(Integrator):
     ):
         # Take the accepted step, then linearise at the new iterate; its increment starts from 0.
         ti.loop_config(serialize=model.serial)
-        for i in range(model.particle_count):
+        for i in range(model.live_particles()):
             d = self.dv[i] + alpha * system.solution[i]
             self.dv[i] = d
             self.vt[i] = vi[i] + d
@@ -281,13 +282,13 @@ class IntegratorImplicitEuler(Integrator):
             system.solution[i] = ti.Vector.zero(float, 3)
         system.linearize(self.xt, self.vt, t, h)
         ti.loop_config(serialize=model.serial)
-        for i in range(model.particle_count):
+        for i in range(model.live_particles()):
             system.assemble_row_newton(i, self.xt, self.vt, self.dv, t, h)
 
     @ti.kernel
     def _newton_finish(self, system: ti.template(), alpha: float):
         # The step's total dv where update() reads it (and the next step's first solve starts from it).
-        for i in range(system.size):
+        for i in range(system.model.live_particles()):
             system.solution[i] = self.dv[i] + alpha * system.solution[i]
 
     @ti.kernel
@@ -303,14 +304,14 @@ class IntegratorImplicitEuler(Integrator):
     ):
         """merit = |g(v)|^2_{M^-1} / 2 at v = v0 + dv + alpha d (free particles; pinned ones keep v0)."""
         ti.loop_config(serialize=model.serial)
-        for i in range(model.particle_count):
+        for i in range(model.live_particles()):
             v = vi[i] + self.dv[i] + alpha * system.solution[i]
             self.vt[i] = v
             self.xt[i] = xi[i] + h * v
         model.element_pass(self.caches, self.xt, self.vt, t)
         self.merit[None] = 0.0
         ti.loop_config(serialize=True)  # a fixed summation order: the same bits at any thread count
-        for i in range(model.particle_count):
+        for i in range(model.live_particles()):
             w = model.inv_mass(i)
             if w > 0.0:
                 v = self.vt[i]

@@ -14,7 +14,7 @@ preconditioner are 0, so dv stays 0 there and they keep their prescribed velocit
 import numpy as np
 import taichi as ti
 
-from ..runtime import data_oriented, np_float
+from ..runtime import data_oriented
 
 
 @data_oriented
@@ -26,14 +26,17 @@ class ImplicitSystem:
         self.model = model
         self.caches = caches  # the integrator's element caches, holding the linearisation
         self.size = n
+        # Under capacity buckets the fields hold particle_capacity rows and loops run to the live count.
+        self.capacity = model.particle_capacity if model.size_buckets else None
         # Without pointwise Jacobians (gravity only) D_i = m_i I: no 3x3 block to store or read.
         self.pointwise = any(t.has_jacobian for t in model.point_terms)
         self.mass_norm = float(np.linalg.norm(model.particle_masses()))  # the solvers' absolute floor
-        self._fields = (ti.Vector.field(3, float, n), ti.Vector.field(3, float, n))  # NumPy access
-        self.rhs = ti.Vector.field(3, float, n)
-        self.solution = ti.Vector.field(3, float, n)
-        self.block = ti.Matrix.field(3, 3, float, n) if self.pointwise else None
-        self.inv_block = ti.Matrix.field(3, 3, float, n)
+        self._fields = None  # (x, v) for NumPy access, n rows: made on first use (tests and reports)
+        vec = model.particle_array
+        self.rhs = vec(self, "system_rhs", dims=(3,))
+        self.solution = vec(self, "system_solution", dims=(3,))
+        self.block = vec(self, "system_block", dims=(3, 3)) if self.pointwise else None
+        self.inv_block = vec(self, "system_inv_block", dims=(3, 3))
 
     @ti.func
     def free(self, i):
@@ -112,27 +115,29 @@ class ImplicitSystem:
     def assemble(self, x, v, h: float, t: float = 0.0) -> None:
         """Build the system at positions x (N,3) [m] and velocities v (N,3) [m/s] for step h [s]."""
         xf, vf = self._scratch()
-        xf.from_numpy(np.asarray(x, dtype=np_float()))
-        vf.from_numpy(np.asarray(v, dtype=np_float()))
+        xf.from_numpy(self.model.padded(x))
+        vf.from_numpy(self.model.padded(v))
         self._assemble_all(xf, vf, t, h)
 
     def matvec(self, p) -> np.ndarray:
         """A p for p (N,3), rows of pinned particles 0."""
         pf, qf = self._scratch()
-        pf.from_numpy(np.asarray(p, dtype=np_float()))
+        pf.from_numpy(self.model.padded(p))
         self._matvec(pf, qf)
-        return qf.to_numpy().astype(np.float64)
+        return qf.to_numpy()[: self.size].astype(np.float64)
 
     def _scratch(self):
+        if self._fields is None:
+            self._fields = tuple(ti.Vector.field(3, float, self.model.particle_capacity) for _ in range(2))
         return self._fields
 
     @ti.kernel
     def _assemble_all(self, xf: ti.template(), vf: ti.template(), t: float, h: float):
         self.linearize(xf, vf, t, h)
-        for i in range(self.size):
+        for i in range(self.model.live_particles()):
             self.assemble_row(i, xf, vf, t, h)
 
     @ti.kernel
     def _matvec(self, pf: ti.template(), qf: ti.template()):
-        for i in range(self.size):
+        for i in range(self.model.live_particles()):
             qf[i] = self.apply(i, pf)

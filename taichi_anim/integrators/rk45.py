@@ -91,7 +91,7 @@ class IntegratorRK45(IntegratorRungeKutta):
     def _allocate(self, model) -> None:
         super()._allocate(model)
         if self.adaptive:
-            self.xs, self.vs = scratch_pairs(model.particle_count, 2)
+            self.xs, self.vs = scratch_pairs(model, self, 2)
 
     def advance_step(self, model, state, dt: float) -> None:
         if not self.adaptive:

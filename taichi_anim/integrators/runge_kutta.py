@@ -43,7 +43,7 @@ class IntegratorRungeKutta(Integrator):
         self.kx = None  # stage derivatives, (stages-1, N) each: the last stage is never stored
         self.kv = None
         self.sx = self.sv = None
-        self.error = ti.field(float, ())  # max over particles of the scaled embedded error
+        self.error = None  # 0-d: max over particles of the scaled embedded error (made by _allocate)
         self.rtol = 0.0
         self.atol = 1.0
 
@@ -53,14 +53,16 @@ class IntegratorRungeKutta(Integrator):
         return StabilityRegion.runge_kutta(self.tableau)
 
     def _allocate(self, model) -> None:
-        n = model.particle_count
+        self.error = model.new_field(self, "rk_error", float, ())
         if self.stages > 1:
-            self.kx = ti.Vector.field(3, float, (self.stages - 1, n))
-            self.kv = ti.Vector.field(3, float, (self.stages - 1, n))
+            shape = (self.stages - 1, model.particle_capacity)
+            self.kx = model.new_field(self, "rk_kx", float, shape, (3,))
+            self.kv = model.new_field(self, "rk_kv", float, shape, (3,))
             if model.coupled:
                 # Element terms read every particle's stage state, so stages s >= 1 live in fields.
-                self.sx = [None] + [ti.Vector.field(3, float, n) for _ in range(1, self.stages)]
-                self.sv = [None] + [ti.Vector.field(3, float, n) for _ in range(1, self.stages)]
+                pa = model.particle_array
+                self.sx = [None] + [pa(self, f"rk_sx{s}", dims=(3,)) for s in range(1, self.stages)]
+                self.sv = [None] + [pa(self, f"rk_sv{s}", dims=(3,)) for s in range(1, self.stages)]
 
     def prepare(self, model, state, xi, vi, ta, t, h) -> None:
         for s in range(self.stages - 1):
@@ -97,7 +99,7 @@ class IntegratorRungeKutta(Integrator):
             fx, fv = ti.static(self._stage_fields(xi, vi, s))
             model.element_pass(self.caches, fx, fv, ts)
         ti.loop_config(serialize=model.serial)
-        for i in range(model.particle_count):
+        for i in range(model.live_particles()):
             if model.alive(state, i, ta):
                 if ti.static(model.coupled):
                     fx, fv = ti.static(self._stage_fields(xi, vi, s))

@@ -18,6 +18,7 @@ from enum import Enum
 import taichi as ti
 
 from .. import validate
+from ..capacity import plain
 from ..runtime import backend_name, cpu_threads, data_oriented
 
 CPU_BLOCK = 256  # rows per block on the CPU (fixed, so results do not depend on the thread count)
@@ -63,6 +64,8 @@ class LinearSolver:
         self.warm_start = bool(warm_start)
         self.check_every = 2 * ((validate.count("check_every", check_every, 1) + 1) // 2)
         self.size = -1
+        self.capacity = None
+        self.buckets = False
         self.last = LinearSolveResult(0, 0.0, True)
         self.total_iterations = 0
         self.solves = 0
@@ -97,31 +100,60 @@ class LinearSolver:
                 break
         return self._record(floor)
 
-    def bind(self, n: int) -> None:
-        """Allocate the solver's vectors for systems of n block rows (before any solve)."""
-        if n == self.size:
+    def bind(self, n: int, capacity: int | None = None, new_field=None) -> None:
+        """Allocate the solver's vectors for systems of n block rows (before any solve). capacity: the
+        rows of the fields under capacity buckets (capacity.py), with new_field the model's allocator:
+        the row and block counts are then read at run time and every choice below goes by the capacity,
+        so that any n of one bucket runs the same compiled kernels (the same sums in the same order)."""
+        if n == self.size and capacity == self.capacity:
             return
         self.size = n
+        self.capacity = capacity
+        self.buckets = capacity is not None
+        rows = capacity if self.buckets else n
+        make = new_field if self.buckets else plain
         cpu = backend_name() == "cpu"
         self.block = CPU_BLOCK if cpu else 1
         self.blocked = cpu
         self.block_count = math.ceil(n / self.block)
+        blocks = math.ceil(rows / self.block)
         # A loop over blocks runs as `for t in range(block_count * spread)`, block t // spread at every
         # spread-th t: Taichi cuts a CPU loop into tasks of >= TASK_ITEMS iterations, so a loop over a few
         # dozen blocks would be one task on one thread; spreading them makes 2 tasks per thread.
-        self.serial_blocks = cpu and n < CPU_PARALLEL_ROWS
+        self.serial_blocks = cpu and rows < CPU_PARALLEL_ROWS
         self.spread = 1
         if cpu and not self.serial_blocks:
             threads = max(1, cpu_threads())
-            self.spread = max(1, math.ceil(TASK_ITEMS * 2 * threads / self.block_count))
-        self.partial = ti.Vector.field(3, float, (SLOTS, self.block_count)) if cpu else None
-        self.sums = ti.Vector.field(3, float, SLOTS)  # GPU: the slots themselves
-        self.status = ti.field(ti.i32, 2)  # done flag, iterations
-        self.final = ti.field(float, 2)  # r.r and b.b when done
-        self._allocate(n)
+            self.spread = max(1, math.ceil(TASK_ITEMS * 2 * threads / blocks))
+        self.partial = make(self, "solver_partial", float, (SLOTS, blocks), (3,)) if cpu else None
+        self.sums = make(self, "solver_sums", float, SLOTS, (3,))  # GPU: the slots themselves
+        self.status = make(self, "solver_status", ti.i32, 2)  # done flag, iterations
+        self.final = make(self, "solver_final", float, 2)  # r.r and b.b when done
+        self.live = None  # (rows, blocks) read at run time under buckets
+        if self.buckets:
+            self.live = make(self, "solver_live", ti.i32, (), (2,))
+            self.live[None] = (n, self.block_count)
+        self._allocate(rows, make)
 
-    def _allocate(self, n: int) -> None:
+    def _allocate(self, rows: int, make) -> None:
+        """The solver's vectors of `rows` rows, from make(owner, role, dtype, shape, dims)."""
         raise NotImplementedError
+
+    @ti.func
+    def rows(self):
+        """Rows of the system: the live count under buckets (a field read), else a constant."""
+        if ti.static(self.buckets):
+            return self.live[None][0]
+        else:
+            return self.size
+
+    @ti.func
+    def blocks(self):
+        """Blocks of rows the loops run over (as rows())."""
+        if ti.static(self.buckets):
+            return self.live[None][1]
+        else:
+            return self.block_count
 
     def _record(self, floor: float) -> LinearSolveResult:
         it = int(self.status[1])
@@ -145,7 +177,7 @@ class LinearSolver:
     @ti.func
     def row_end(self, blk):
         """One past the last row of block blk (its first row is blk * block)."""
-        return ti.min((blk + 1) * self.block, self.size)
+        return ti.min((blk + 1) * self.block, self.rows())
 
     @ti.func
     def store(self, slot: ti.template(), blk, s):
@@ -162,7 +194,7 @@ class LinearSolver:
         thread count), the atomic sum on GPUs."""
         acc = ti.Vector.zero(float, 3)
         if ti.static(self.blocked):
-            for b in range(self.block_count):  # inside a parallel loop body: serial, fixed order
+            for b in range(self.blocks()):  # inside a parallel loop body: serial, fixed order
                 acc += self.partial[slot, b]
         else:
             acc = self.sums[slot]

@@ -26,11 +26,8 @@ class LinearSolverCG(LinearSolver):
         self.preconditioned = bool(preconditioned)
         self.name = "pcg" if preconditioned else "cg"
 
-    def _allocate(self, n: int) -> None:
-        self.r = ti.Vector.field(3, float, n)
-        self.z = ti.Vector.field(3, float, n)
-        self.p = ti.Vector.field(3, float, n)
-        self.q = ti.Vector.field(3, float, n)
+    def _allocate(self, rows: int, make) -> None:
+        self.r, self.z, self.p, self.q = (make(self, f"cg_{v}", float, rows, (3,)) for v in "rzpq")
 
     @ti.func
     def _z(self, system: ti.template(), i, r):
@@ -46,7 +43,7 @@ class LinearSolverCG(LinearSolver):
         x = ti.static(system.solution)
         self.reset()
         ti.loop_config(serialize=self.serial_blocks)
-        for t in range(self.block_count * self.spread):  # see LinearSolver.bind
+        for t in range(self.blocks() * self.spread):  # see LinearSolver.bind
             if t % self.spread == 0:
                 blk = t // self.spread
                 s = ti.Vector.zero(float, 3)
@@ -85,7 +82,7 @@ class LinearSolverCG(LinearSolver):
             r_new = ti.static(R0 if k % 2 == 0 else R1)
             r_old = ti.static(R1 if k % 2 == 0 else R0)
             ti.loop_config(serialize=self.serial_blocks)
-            for t in range(self.block_count * self.spread):  # see LinearSolver.bind
+            for t in range(self.blocks() * self.spread):  # see LinearSolver.bind
                 if t % self.spread == 0:
                     blk = t // self.spread
                     if self.status[0] == 0:
@@ -101,7 +98,7 @@ class LinearSolverCG(LinearSolver):
                                 s[0] += self.p[i].dot(q)
                             self.store(pq_slot, blk, s)
             ti.loop_config(serialize=self.serial_blocks)
-            for t in range(self.block_count * self.spread):  # see LinearSolver.bind
+            for t in range(self.blocks() * self.spread):  # see LinearSolver.bind
                 if t % self.spread == 0:
                     blk = t // self.spread
                     if self.status[0] == 0:
@@ -120,7 +117,7 @@ class LinearSolverCG(LinearSolver):
                         self.store(r_new, blk, s)
                         self.clear(ti.static(PQ1 if k % 2 == 0 else PQ0), blk)
             ti.loop_config(serialize=self.serial_blocks)
-            for t in range(self.block_count * self.spread):  # see LinearSolver.bind
+            for t in range(self.blocks() * self.spread):  # see LinearSolver.bind
                 if t % self.spread == 0:
                     blk = t // self.spread
                     if self.status[0] == 0:

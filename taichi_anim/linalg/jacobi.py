@@ -21,15 +21,15 @@ class LinearSolverJacobi(LinearSolver):
 
     name = "jacobi"
 
-    def _allocate(self, n: int) -> None:
-        self.r = ti.Vector.field(3, float, n)
+    def _allocate(self, rows: int, make) -> None:
+        self.r = make(self, "jacobi_r", float, rows, (3,))
 
     @ti.kernel
     def _start(self, system: ti.template(), warm: ti.template()):
         x = ti.static(system.solution)
         self.reset()
         ti.loop_config(serialize=self.serial_blocks)
-        for t in range(self.block_count * self.spread):  # see LinearSolver.bind
+        for t in range(self.blocks() * self.spread):  # see LinearSolver.bind
             if t % self.spread == 0:
                 blk = t // self.spread
                 s = ti.Vector.zero(float, 3)
@@ -56,7 +56,7 @@ class LinearSolverJacobi(LinearSolver):
         for k in ti.static(range(unroll)):
             r_slot = ti.static(R0 if k % 2 == 0 else R1)
             ti.loop_config(serialize=self.serial_blocks)
-            for t in range(self.block_count * self.spread):  # see LinearSolver.bind
+            for t in range(self.blocks() * self.spread):  # see LinearSolver.bind
                 if t % self.spread == 0:
                     blk = t // self.spread
                     if self.status[0] == 0:
@@ -68,7 +68,7 @@ class LinearSolverJacobi(LinearSolver):
                         self.store(r_slot, blk, s)
                         self.clear(ti.static(R1 if k % 2 == 0 else R0), blk)
             ti.loop_config(serialize=self.serial_blocks)
-            for t in range(self.block_count * self.spread):  # see LinearSolver.bind
+            for t in range(self.blocks() * self.spread):  # see LinearSolver.bind
                 if t % self.spread == 0:
                     blk = t // self.spread
                     if self.status[0] == 0:

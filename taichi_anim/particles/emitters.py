@@ -16,7 +16,7 @@ from enum import Enum
 
 import taichi as ti
 
-from .. import validate
+from .. import capacity, validate
 from ..rng import uniform
 from ..runtime import data_oriented, serial_loops
 
@@ -101,7 +101,8 @@ class Emitter:
         # Bits of the first and last word that belong to this emitter's slot range.
         self.mask_lo = (0xFFFFFFFF << (start & 31)) & 0xFFFFFFFF
         self.mask_hi = 0xFFFFFFFF >> (31 - ((end - 1) & 31))
-        self.serial = serial_loops(self.capacity)
+        # Under capacity buckets the choice goes by the bucket, so that every size compiles one kernel.
+        self.serial = serial_loops(capacity.bucket(self.capacity) if capacity.enabled() else self.capacity)
 
     def settings(self) -> dict:
         d = asdict(self.s)
@@ -117,28 +118,42 @@ class Emitter:
         state.emit_carry[self.index] = want - int(want)
         if n == 0:
             return
-        self._emit(state, n, t, seed, step)
+        slots = (self.start, self.word_lo, self.word_hi, self.mask_lo, self.mask_hi)
+        self._emit(state, n, t, seed, step, *slots)
 
     @ti.kernel
-    def _emit(self, state: ti.template(), n: ti.i32, t: float, seed: ti.u32, step: ti.u32):
-        # One launch: a serial scan for free slots, then a parallel spawn into them.
-        words = self.word_hi - self.word_lo + 1
+    def _emit(
+        self,
+        state: ti.template(),
+        n: ti.i32,
+        t: float,
+        seed: ti.u32,
+        step: ti.u32,
+        start: ti.i32,
+        word_lo: ti.i32,
+        word_hi: ti.i32,
+        mask_lo: ti.u32,
+        mask_hi: ti.u32,
+    ):
+        # One launch: a serial scan for free slots, then a parallel spawn into them. The slot range comes
+        # as arguments, not constants, so that an emitter of another capacity compiles nothing new.
+        words = word_hi - word_lo + 1
         ti.loop_config(serialize=True)
         for _ in range(1):
             cursor = state.emit_cursor[self.index]
             found = 0
             scanned = 0
             while found < n and scanned < words:
-                w = self.word_lo + cursor
+                w = word_lo + cursor
                 mask = ti.u32(0xFFFFFFFF)
-                if w == self.word_lo:
-                    mask &= ti.u32(self.mask_lo)
-                if w == self.word_hi:
-                    mask &= ti.u32(self.mask_hi)
+                if w == word_lo:
+                    mask &= mask_lo
+                if w == word_hi:
+                    mask &= mask_hi
                 bits = state.particle_free[w] & mask
                 while bits != 0 and found < n:
                     low = bits & (~bits + ti.u32(1))  # lowest set bit
-                    state.emit_slot[self.start + found] = w * 32 + _bit_index(low)
+                    state.emit_slot[start + found] = w * 32 + _bit_index(low)
                     found += 1
                     bits ^= low
                     state.particle_free[w] ^= low
@@ -149,7 +164,7 @@ class Emitter:
             state.emit_cursor[self.index] = cursor
         ti.loop_config(serialize=self.serial)
         for j in range(state.emit_found[self.index]):
-            self._spawn_one(state, j, t, seed, step)
+            self._spawn_one(state, start, j, t, seed, step)
 
     @ti.func
     def _sample(self, seed, step, j):
@@ -181,9 +196,9 @@ class Emitter:
         return pos, speed * dirn, life
 
     @ti.func
-    def _spawn_one(self, state: ti.template(), j, t, seed, step):
-        i = state.emit_slot[self.start + j]
-        x, v, life = self._sample(seed, step, ti.cast(self.start + j, ti.u32))
+    def _spawn_one(self, state: ti.template(), start, j, t, seed, step):
+        i = state.emit_slot[start + j]
+        x, v, life = self._sample(seed, step, ti.cast(start + j, ti.u32))
         state.particle_x[i] = x
         state.particle_v[i] = v
         state.particle_birth[i] = t

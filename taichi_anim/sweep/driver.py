@@ -71,7 +71,8 @@ def sweep(
     scene: a catalogue name (taichi_anim.scenes.SCENES), a top-level `build(**options) -> Scene`
     function, or "module:function". params: name -> list of values; a name is any option of the scene's
     build or of a run (params.RUN_OPTIONS: frames, export, export_format, video, color_by, arch,
-    precision). options: values every run shares (e.g. frames=10, export=False).
+    precision, size_buckets: on unless False, see capacity.py). options: values every run shares (e.g.
+    frames=10, export=False).
     executor: any concurrent.futures.Executor (e.g. a Dask Client(...).get_executor()); cluster: a Dask
     scheduler address to make one from; default: `workers` (default os.cpu_count()) runs at a time here.
     threads: Taichi CPU threads per run (default 1 when the local runs fill the cores, else Taichi's).

@@ -20,7 +20,7 @@ from ..errors import ParameterError
 
 # Options of a demo run that are not the scene's build options: how run_scene runs and exports it
 # (frames, export, export_format, video, color_by) and how Taichi starts (arch, precision).
-RUN_OPTIONS = ("frames", "export", "export_format", "video", "color_by", "arch", "precision")
+RUN_OPTIONS = ("frames", "export", "export_format", "video", "color_by", "arch", "precision", "size_buckets")
 MODES = ("product", "list")
 ID_MAX_CHARS = 120  # file names stay well under every file system's 255-byte limit
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.,+-]+")

@@ -34,7 +34,9 @@ def run(task: dict) -> None:
     (out / FINAL_NAME).unlink(missing_ok=True)
     opts = task["run"]
     arch = opts.get("arch", "cpu")
-    runtime.init(arch, precision=opts.get("precision", "f32"))  # threads: TI_CPU_MAX_NUM_THREADS
+    # Threads: TI_CPU_MAX_NUM_THREADS. Capacity buckets unless the sweep turns them off: runs of other
+    # sizes in one bucket then find every kernel in the cache the warm-up filled.
+    runtime.init(arch, precision=opts.get("precision", "f32"), size_buckets=opts.get("size_buckets", True))
     scene = load_build(task["scene"])(**task["build"])
     cpu_frame_s: list[float] = []
     advance = scene.advance_frame

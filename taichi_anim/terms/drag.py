@@ -15,6 +15,16 @@ class Drag(PointTerm):
     def __init__(self, k: float, wind=(0.0, 0.0, 0.0)):
         self.k = float(k)
         self.wind = tuple(float(c) for c in wind)
+        self.runtime_params = False  # compile-time constants unless bound to a bucketed model
+        self.param = None
+
+    def bind(self, model) -> None:
+        """Under capacity buckets k and the wind are read from a field at run time: scenes often scale k
+        with the vertex mass, which would make every size compile its own kernels."""
+        self.runtime_params = model.size_buckets
+        if self.runtime_params:
+            self.param = model.new_field(self, "drag_param", float, (), (4,))
+            self.param[None] = (self.k, *self.wind)
 
     def settings(self) -> dict:
         """The term's settings for run.json: type (drag or wind), k [kg/s], wind [m/s]."""
@@ -42,9 +52,19 @@ class Drag(PointTerm):
     @ti.func
     def force(self, i, m, x, v, t):
         """k (wind - v) [N] on particle i at velocity v [m/s]."""
-        return self.k * (ti.Vector(self.wind, dt=float) - v)
+        k, wind = self._k_wind()
+        return k * (wind - v)
+
+    @ti.func
+    def _k_wind(self):
+        if ti.static(self.runtime_params):
+            p = self.param[None]
+            return p[0], ti.Vector([p[1], p[2], p[3]])
+        else:
+            return ti.cast(self.k, float), ti.Vector(self.wind, dt=float)
 
     @ti.func
     def jacobian(self, i, m, x, v, t):
         """(df/dx, df/dv) = (0, -k I) (3x3 each)."""
-        return ti.Matrix.zero(float, 3, 3), -self.k * ti.Matrix.identity(float, 3)
+        k, _ = self._k_wind()
+        return ti.Matrix.zero(float, 3, 3), -k * ti.Matrix.identity(float, 3)

@@ -16,6 +16,7 @@ count). The update loop that follows may overwrite positions in place: the sprin
 import numpy as np
 import taichi as ti
 
+from .. import capacity
 from ..runtime import data_oriented, np_float
 from .base import TermBounds
 from .stiffness import SpringPart
@@ -40,6 +41,13 @@ def spring_stiffness_apply(n, axial, transverse, p):
     return transverse * p + (axial - transverse) * t * n
 
 
+def _padded(a, rows: int, dtype) -> np.ndarray:
+    """`a` with zero rows up to `rows` (capacity buckets' padding), as dtype."""
+    out = np.zeros((rows, *np.shape(a)[1:]), dtype=dtype)
+    out[: len(a)] = a
+    return out
+
+
 @data_oriented
 class SpringCache:
     """A solver's scratch for the springs: force on each spring's first end (S,) [N]; with implicit
@@ -47,15 +55,18 @@ class SpringCache:
     S_s = -(h df/dv + h^2 df/dx) = axial n n^T + transverse (I - n n^T) (S,2) [kg], and df/dx (v_i - v_j);
     `entry` holds (n, axial, transverse) per adjacency entry (2S,)."""
 
-    def __init__(self, count: int, implicit: bool):
-        self.f = ti.Vector.field(3, float, count)
-        self.n = ti.Vector.field(3, float, count) if implicit else None
-        self.ab = ti.Vector.field(2, float, count) if implicit else None
+    def __init__(self, count: int, implicit: bool, new_field=None):
+        """count: the springs' capacity; new_field(owner, role, dtype, shape, dims): the model's
+        allocator (pooled under capacity buckets), or None for plain fields."""
+        make = new_field or capacity.plain
+        self.f = make(self, "spring_f", float, count, (3,))
+        self.n = make(self, "spring_n", float, count, (3,)) if implicit else None
+        self.ab = make(self, "spring_ab", float, count, (2,)) if implicit else None
         # (n, axial, transverse) again per adjacency entry (2S,), in the order the matrix-vector product
         # reads them: its loop then streams one array instead of chasing each entry's spring index
         # (the product runs ~40 times per implicit step, the copy once; benchmarks/results/cloth_implicit.md).
-        self.entry = ti.Vector.field(5, float, 2 * count) if implicit else None
-        self.kxv = ti.Vector.field(3, float, count) if implicit else None
+        self.entry = make(self, "spring_entry5", float, 2 * count, (5,)) if implicit else None
+        self.kxv = make(self, "spring_kxv", float, count, (3,)) if implicit else None
 
 
 @data_oriented
@@ -71,9 +82,21 @@ class Springs(TermBounds):
     energy_kind = "potential"  # elastic; the damping only removes energy
     fast_blocks = True  # stiffness_part is NumPy: the stability estimate uses the exact blocks
 
-    def __init__(self, particle_count: int, pairs, rest_length, stiffness, damping, family=None):
+    def __init__(self, particle_count: int, pairs, rest_length, stiffness, damping, family=None, model=None):
+        """model: the Model it belongs to, whose capacity buckets (capacity.py) its arrays follow: then
+        they hold capacity rows, padded with springs of zero stiffness that no loop reaches."""
         pairs = np.sort(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), axis=1)
         s = len(pairs)
+        self.model = model
+        buckets = model is not None and model.size_buckets
+        self.buckets = buckets  # kernels branch on it at compile time
+        self.capacity = capacity.bucket(s) if buckets else s
+        rows = model.particle_capacity if buckets else particle_count
+        self._new_field = model.new_field if buckets else None
+        make = self._new_field or capacity.plain
+        self.spring_live = make(self, "spring_live", ti.i32, ()) if buckets else None
+        if buckets:
+            self.spring_live[None] = s
         # Springs sorted by their ends: the spring pass then reads positions nearly in order (a cloth's
         # springs as built jump a whole grid row between neighbours), 1.4x faster at 128^2 here.
         order = np.lexsort((pairs[:, 1], pairs[:, 0]))
@@ -92,30 +115,31 @@ class Springs(TermBounds):
         other = np.concatenate([pairs[:, 1], pairs[:, 0]])
         signed = np.concatenate([np.arange(1, s + 1), -np.arange(1, s + 1)])
         order = np.lexsort((other, owner))
-        counts = np.bincount(owner, minlength=particle_count)
-        start = np.zeros(particle_count + 1, dtype=np.int32)
+        counts = np.bincount(owner, minlength=rows)
+        start = np.zeros(rows + 1, dtype=np.int32)
         np.cumsum(counts, out=start[1:])
         self.entry_count = 2 * s
         f = np_float()
-        self.adj_start = ti.field(ti.i32, particle_count + 1)
-        self.adj_spring = ti.field(ti.i32, 2 * s)
-        self.adj_other = ti.field(ti.i32, 2 * s)
+        cap = self.capacity
+        self.adj_start = make(self, "spring_adj_start", ti.i32, rows + 1)
+        self.adj_spring = make(self, "spring_adj_spring", ti.i32, 2 * cap)
+        self.adj_other = make(self, "spring_adj_other", ti.i32, 2 * cap)
         self.adj_start.from_numpy(start)
-        self.adj_spring.from_numpy(signed[order].astype(np.int32))
-        self.adj_other.from_numpy(other[order].astype(np.int32))
+        self.adj_spring.from_numpy(_padded(signed[order], 2 * cap, np.int32))
+        self.adj_other.from_numpy(_padded(other[order], 2 * cap, np.int32))
         # Where each spring sits in the adjacency: (entry at its first end, entry at its second end).
         where = np.empty((s, 2), dtype=np.int32)
         sorted_signed = signed[order]
         first = sorted_signed > 0
         where[sorted_signed[first] - 1, 0] = np.flatnonzero(first)
         where[-sorted_signed[~first] - 1, 1] = np.flatnonzero(~first)
-        self.spring_entry = ti.Vector.field(2, ti.i32, s)
-        self.spring_entry.from_numpy(where)
-        self.spring_pair = ti.Vector.field(2, ti.i32, s)
-        self.spring_param = ti.Vector.field(3, float, s)  # rest length, stiffness, damping
-        self.spring_pair.from_numpy(pairs.astype(np.int32))
+        self.spring_entry = make(self, "spring_entry", ti.i32, cap, (2,))
+        self.spring_entry.from_numpy(_padded(where, cap, np.int32))
+        self.spring_pair = make(self, "spring_pair", ti.i32, cap, (2,))
+        self.spring_param = make(self, "spring_param", float, cap, (3,))  # rest length, stiffness, damping
+        self.spring_pair.from_numpy(_padded(pairs, cap, np.int32))
         param = np.stack([self.rest_length, self.stiffness, self.damping], axis=1)
-        self.spring_param.from_numpy(param.astype(f))
+        self.spring_param.from_numpy(_padded(param, cap, f))
 
     def settings(self) -> dict:
         """The term's settings for run.json."""
@@ -126,7 +150,7 @@ class Springs(TermBounds):
     def make_cache(self, particle_count: int, implicit: bool) -> SpringCache:
         """This term's scratch for one solver: per-spring forces (and the compact linearisation if
         `implicit`)."""
-        return SpringCache(self.count, implicit)
+        return SpringCache(self.capacity, implicit, self._new_field)
 
     def energy(self, x, masses=None) -> float:
         """Elastic energy sum_s k/2 (l - L)^2 [J] at positions x (N,3) [m]."""
@@ -142,11 +166,19 @@ class Springs(TermBounds):
         return SpringPart(self, np.asarray(x, dtype=np.float64))
 
     @ti.func
+    def live_springs(self):
+        """Springs the loops run over: the live count, read at run time under capacity buckets."""
+        if ti.static(self.buckets):
+            return self.spring_live[None]
+        else:
+            return self.count
+
+    @ti.func
     def evaluate(self, cache: ti.template(), xf: ti.template(), vf: ti.template(), t, serial: ti.template()):
         """The spring pass (a top-level loop: call it first in a kernel): every spring's force at the
         positions xf and velocities vf (fields) into the cache."""
         ti.loop_config(serialize=serial)
-        for s in range(self.count):
+        for s in range(self.live_springs()):
             ij = self.spring_pair[s]
             p = self.spring_param[s]
             f, _, _ = spring_force(xf[ij[0]] - xf[ij[1]], vf[ij[0]] - vf[ij[1]], p[0], p[1], p[2])
@@ -171,7 +203,7 @@ class Springs(TermBounds):
         """The spring pass of an implicit step (top-level loop): force, direction, the two stiffnesses of
         S_s and df/dx (v_i - v_j) with the clamped Jacobian, so b matches the matrix that is solved."""
         ti.loop_config(serialize=serial)
-        for s in range(self.count):
+        for s in range(self.live_springs()):
             ij = self.spring_pair[s]
             p = self.spring_param[s]
             dv = vf[ij[0]] - vf[ij[1]]

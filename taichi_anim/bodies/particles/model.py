@@ -1,10 +1,12 @@
 """The particle kind's model part: counts, masses and radii (uniform ones as compile-time constants),
 the initial positions and velocities, emitters; the Taichi-scope accessors every kernel reads them
-through (`model.mass(i)`, `model.alive(state, i, t)`, ...)."""
+through (`model.mass(i)`, `model.alive(state, i, t)`, `model.live_particles()`, ...). Under capacity
+buckets (capacity.py) its arrays hold particle_capacity rows and kernels loop to the live count."""
 
 import numpy as np
 import taichi as ti
 
+from ... import capacity
 from ...runtime import data_oriented, np_float
 
 
@@ -19,6 +21,11 @@ class ParticleModel:
         radius (N,) [m], the emitters over their slot ranges, the trail length (0: none)."""
         n = len(x)
         self.particle_count = n
+        self.particle_capacity = capacity.bucket(n) if self.size_buckets else n
+        # The live count as a 0-d field, read by kernels at run time (buckets only: else a constant).
+        self.particle_live = self.new_field(self, "particle_live", ti.i32, ()) if self.size_buckets else None
+        if self.size_buckets:
+            self.particle_live[None] = n
         self.emitters = list(emitters)
         self.emitter_count = len(self.emitters)
         self.trail_length = trail_length
@@ -30,11 +37,11 @@ class ParticleModel:
         self.particle_mass = None
         self.particle_inv_mass = None
         if self.uniform_mass is None:
-            self.particle_mass = ti.field(float, n)
-            self.particle_inv_mass = ti.field(float, n)
-            self.particle_mass.from_numpy(masses.astype(np_float()))
+            self.particle_mass = self.particle_array(self, "particle_mass")
+            self.particle_inv_mass = self.particle_array(self, "particle_inv_mass")
+            self.particle_mass.from_numpy(self.padded(masses))
             inv = np.divide(1.0, masses, out=np.zeros_like(masses), where=masses > 0)
-            self.particle_inv_mass.from_numpy(inv.astype(np_float()))
+            self.particle_inv_mass.from_numpy(self.padded(inv))
         self.uniform_inv_mass = 1.0 / self.uniform_mass if self.uniform_mass else 0.0
         self.per_particle_mass = self.uniform_mass is None  # kernels branch on this at compile time
         radii = np.asarray(radius, dtype=np.float64)
@@ -46,9 +53,31 @@ class ParticleModel:
         self.particle_radius = None
         self.per_particle_radius = self.uniform_radius is None  # compile-time branch in kernels
         if self.uniform_radius is None:
-            self.particle_radius = ti.field(float, n)
-            self.particle_radius.from_numpy(radii.astype(np_float()))
+            self.particle_radius = self.particle_array(self, "particle_radius")
+            self.particle_radius.from_numpy(self.padded(radii))
         self._static_count = n - sum(e.capacity for e in self.emitters)
+
+    def particle_array(self, owner, role: str, dtype=float, dims: tuple = (), extra: tuple = ()):
+        """A field of particle_capacity rows (by `extra` columns) with elements of `dims`, for `owner`
+        (the model or a State or solver of it): pooled under buckets (Model.new_field)."""
+        return self.new_field(owner, role, dtype, (self.particle_capacity, *extra), dims)
+
+    def padded(self, a, dtype=None) -> np.ndarray:
+        """`a` (particle_count rows) with zero rows up to particle_capacity, as the float fields' dtype
+        (or `dtype`): what from_numpy of a particle array takes."""
+        a = np.asarray(a)
+        out = np.zeros((self.particle_capacity, *a.shape[1:]), dtype=dtype or np_float())
+        out[: len(a)] = a
+        return out
+
+    @ti.func
+    def live_particles(self):
+        """Particles the kernels loop over: the live count (a 0-d field read at run time under
+        buckets, so that another size compiles nothing; a compile-time constant otherwise)."""
+        if ti.static(self.size_buckets):
+            return self.particle_live[None]
+        else:
+            return self.particle_count
 
     def emit(self, state, dt: float) -> None:
         """Run every emitter for a step of dt [s] on `state` (births into free slots)."""
@@ -106,7 +135,7 @@ class ParticleModel:
         """(N,) masses [kg] (0 for pinned particles)."""
         if self.particle_mass is None:
             return np.full(self.particle_count, self.uniform_mass or 0.0)
-        return self.particle_mass.to_numpy().astype(np.float64)
+        return self.particle_mass.to_numpy()[: self.particle_count].astype(np.float64)
 
     def pinned_indices(self) -> np.ndarray:
         """(P,) int64 indices of the pinned (kinematic) particles: those added with mass 0, and a cloth's

@@ -37,42 +37,48 @@ class ParticleState:
     order)."""
 
     def _init_particles(self, model) -> None:
-        """Allocate the particle arrays of a State of `model` (exactly sized, once)."""
-        n = model.particle_count
-        self.particle_x = ti.Vector.field(3, float, n)
-        self.particle_v = ti.Vector.field(3, float, n)
+        """Allocate the particle arrays of a State of `model` (once; particle_capacity rows, which is the
+        particle count unless capacity buckets are on)."""
+        cap = model.particle_capacity
+        self.particle_x = model.particle_array(self, "particle_x", dims=(3,))
+        self.particle_v = model.particle_array(self, "particle_v", dims=(3,))
         self.has_lifetimes = model.emitter_count > 0
-        self.particle_birth = ti.field(float, n) if self.has_lifetimes else None
-        self.particle_death = ti.field(float, n) if self.has_lifetimes else None
+        self.particle_birth = model.particle_array(self, "particle_birth") if self.has_lifetimes else None
+        self.particle_death = model.particle_array(self, "particle_death") if self.has_lifetimes else None
         # One bit per slot, set while the slot is dead and not yet reused: emitters find free slots by
         # scanning 32 slots per word instead of one death time per slot.
-        self.particle_free = ti.field(ti.u32, (n + 31) // 32) if self.has_lifetimes else None
+        words = (cap + 31) // 32
+        self.particle_free = None
+        if self.has_lifetimes:
+            self.particle_free = model.new_field(self, "particle_free", ti.u32, words)
         # Emission: per emitter the fraction of a particle carried to the next step, the word its free-slot
         # scan starts at, and the slots found this step (at the emitter's own slot range).
         k = model.emitter_count
         self.emit_carry = [0.0] * k
-        self.emit_cursor = ti.field(ti.i32, k) if k else None
-        self.emit_found = ti.field(ti.i32, k) if k else None
-        self.emit_slot = ti.field(ti.i32, n) if k else None
+        self.emit_cursor = model.new_field(self, "emit_cursor", ti.i32, k) if k else None
+        self.emit_found = model.new_field(self, "emit_found", ti.i32, k) if k else None
+        self.emit_slot = model.particle_array(self, "emit_slot", ti.i32) if k else None
         self.trail_length = model.trail_length
-        self.trail = ti.Vector.field(3, float, (n, self.trail_length)) if self.trail_length else None
+        self.trail = None
+        if self.trail_length:
+            self.trail = model.particle_array(self, "trail", dims=(3,), extra=(self.trail_length,))
         self.trail_head = 0
 
     def _start_particles(self, model) -> None:
         """Fill the arrays for t = 0: the builder's particles in place, every emitter slot dead."""
-        f = np_float()
-        self.particle_x.from_numpy(model._x0.astype(f))
-        self.particle_v.from_numpy(model._v0.astype(f))
+        self.particle_x.from_numpy(model.padded(model._x0))
+        self.particle_v.from_numpy(model.padded(model._v0))
         if self.has_lifetimes:
-            death = np.full(model.particle_count, -1.0)
+            death = np.full(model.particle_capacity, -1.0)  # rows past the live count: dead, never freed
             death[: model._static_count] = ALIVE_FOREVER
-            self.particle_death.from_numpy(death.astype(f))
+            self.particle_death.from_numpy(model.padded(death))
             dead = np.zeros(self.particle_free.shape[0] * 32, dtype=np.uint8)
             dead[model._static_count : model.particle_count] = 1
             self.particle_free.from_numpy(np.packbits(dead, bitorder="little").view(np.uint32))
-            self.particle_birth.from_numpy(np.zeros(model.particle_count, f))
+            self.particle_birth.from_numpy(model.padded(np.zeros(model.particle_count)))
+            self.emit_cursor.from_numpy(np.zeros(model.emitter_count, np.int32))  # a pooled field is not zero
         if self.trail_length:
-            self.trail.from_numpy(np.repeat(model._x0[:, None, :], self.trail_length, axis=1).astype(f))
+            self.trail.from_numpy(model.padded(np.repeat(model._x0[:, None, :], self.trail_length, axis=1)))
 
     def _save_particles(self, into, whole_trail: bool) -> None:
         """Copy the particle arrays into `into` (one kernel launch), and the emission carry and trail
@@ -83,11 +89,11 @@ class ParticleState:
 
     def positions(self) -> np.ndarray:
         """(N,3) float64 positions [m] of every particle slot, alive or not (snapshot() gives the alive)."""
-        return self.particle_x.to_numpy().astype(np.float64)
+        return self.particle_x.to_numpy()[: self.model.particle_count].astype(np.float64)
 
     def velocities(self) -> np.ndarray:
         """(N,3) float64 velocities [m/s] of every particle slot."""
-        return self.particle_v.to_numpy().astype(np.float64)
+        return self.particle_v.to_numpy()[: self.model.particle_count].astype(np.float64)
 
     def set_positions(self, x, indices=None) -> None:
         """Overwrite positions [m]: `x` is (N,3) for every particle, or (len(indices),3) with `indices`
@@ -118,7 +124,7 @@ class ParticleState:
         """(N,) bool: particles alive now."""
         if not self.has_lifetimes:
             return np.ones(self.model.particle_count, dtype=bool)
-        return self.particle_death.to_numpy() > self.time
+        return self.particle_death.to_numpy()[: self.model.particle_count] > self.time
 
     def snapshot(self) -> ParticleSnapshot:
         """Copy the alive particles to NumPy (read-only output; never fed back)."""
@@ -145,14 +151,14 @@ class ParticleState:
     @ti.kernel
     def record_trails(self, head: ti.i32):
         ti.loop_config(serialize=self.model.serial)  # same launch-cost choice as the integrators
-        for i in range(self.particle_x.shape[0]):
+        for i in range(self.model.live_particles()):
             self.trail[i, head] = self.particle_x[i]
 
 
 @ti.kernel
 def _copy_particles(src: ti.template(), dst: ti.template(), head: ti.i32, whole_trail: ti.template()):
     ti.loop_config(serialize=src.model.serial)
-    for i in range(src.particle_x.shape[0]):
+    for i in range(src.model.live_particles()):
         dst.particle_x[i] = src.particle_x[i]
         dst.particle_v[i] = src.particle_v[i]
         if ti.static(src.has_lifetimes):

@@ -1,0 +1,146 @@
+"""Capacity buckets (capacity.py): a scene of another size in the same bucket compiles no kernel, in the
+same process and in the next one (counted through Taichi's own offline cache: one file per compiled
+kernel), and runs the same physics as with exactly sized arrays."""
+
+import gc
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import taichi as ti
+
+import taichi_anim as ta
+from taichi_anim import capacity
+from taichi_anim.errors import ParameterError
+from taichi_anim.scenes import cloth, fountain
+
+from .helpers import ulp_tolerance
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# Two sizes in one bucket, and one in the next, per scene kind: an emitter's pool (particles, emitters,
+# trails, a box collider, symplectic Euler) and a mass-spring cloth stepped by implicit Euler with PCG
+# (springs, drag, pins, the linear solver). Cloth 14 and 15: 196 and 225 vertices (bucket 256), 1038 and
+# 1202 springs (bucket 2048); 17: 289 vertices.
+SIZES = {
+    "fountain": ({"particles": 700}, {"particles": 1000}, {"particles": 1500}),
+    "cloth": ({"resolution": 14}, {"resolution": 15}, {"resolution": 17}),
+}
+BUILD = {"fountain": {}, "cloth": {"integrator": "implicit_euler"}}
+
+_RUNNER = """
+import gc, json, sys
+import taichi_anim as ta
+from importlib import import_module
+ta.init("cpu", size_buckets=True)
+for name, options in json.loads(sys.argv[1]):
+    scene = import_module("taichi_anim.scenes." + name).build(**options)
+    stepper = ta.Stepper(scene.model, scene.integrator)
+    for _ in range(2):
+        stepper.step(scene.state, scene.dt, scene.substeps)
+    scene.state.snapshot()
+    del scene, stepper
+    gc.collect()
+"""
+
+
+def _run(plan: list, cache: Path) -> int:
+    """Run the scenes of `plan` ([name, build options] in order) in one new process with the offline
+    cache in `cache`; return how many compiled kernels the cache holds afterwards."""
+    env = dict(os.environ, TI_OFFLINE_CACHE_FILE_PATH=str(cache), PYTHONPATH=str(ROOT))
+    env.pop("TAICHI_ANIM_SIZE_BUCKETS", None)
+    done = subprocess.run([sys.executable, "-c", _RUNNER, json.dumps(plan)], env=env, capture_output=True)
+    assert done.returncode == 0, done.stderr.decode()[-2000:]
+    return len(list(cache.rglob("*.tic")))
+
+
+def _plan(which: int) -> list:
+    return [[name, {**BUILD[name], **SIZES[name][which]}] for name in SIZES]
+
+
+def test_another_size_in_the_bucket_compiles_no_kernel(tmp_path):
+    first = _run(_plan(0), tmp_path / "first")
+    assert first > 10  # the scenes' kernels were compiled into the cache
+    # In one process: the second size's scenes get the first's fields back and find every kernel.
+    assert _run(_plan(0) + _plan(1), tmp_path / "both") == first
+    # The check is sensitive: a size in the next bucket compiles its own kernels.
+    assert _run(_plan(0) + _plan(1) + _plan(2), tmp_path / "three") > first
+    # In the next process: the cache the first size filled serves the second.
+    shutil.copytree(tmp_path / "first", tmp_path / "next")
+    assert _run(_plan(1), tmp_path / "next") == first
+
+
+def _final(name: str, buckets: bool, frames: int):
+    ta.init("cpu", precision="f64", size_buckets=buckets)
+    scene = {"fountain": fountain, "cloth": cloth}[name].build(**BUILD[name], **SIZES[name][1])
+    stepper = ta.Stepper(scene.model, scene.integrator)
+    for _ in range(frames):
+        stepper.step(scene.state, scene.dt, scene.substeps)
+    return scene
+
+
+@pytest.fixture
+def buckets_reset():
+    yield
+    capacity.set_enabled(None)
+
+
+@pytest.mark.parametrize("name, frames", [("fountain", 30), ("cloth", 10)])
+def test_buckets_run_the_same_physics(buckets_reset, name, frames):
+    """The live count read at run time instead of a constant: the same arithmetic, compiled apart, so equal
+    within round-off (the cloth's PCG also stops after the same iterations)."""
+    exact = _final(name, False, frames)
+    x0, alive0 = exact.state.positions(), exact.state.alive_mask()
+    n = exact.model.particle_count
+    assert exact.state.particle_x.shape == (n,)
+    bucketed = _final(name, True, frames)
+    model = bucketed.model
+    assert model.particle_count == n and model.particle_capacity == capacity.bucket(n) > n
+    assert bucketed.state.particle_x.shape == (model.particle_capacity,)
+    x1 = bucketed.state.positions()
+    assert x1.shape == (n, 3)
+    np.testing.assert_array_equal(bucketed.state.alive_mask(), alive0)
+    assert alive0.sum() > 0
+    tol = ulp_tolerance(float(np.abs(x0[alive0]).max()), ulps=1024)  # f64, frames of rounding
+    np.testing.assert_allclose(x1[alive0], x0[alive0], rtol=0, atol=tol)
+    # Rows past the live count are never touched: still the zeros the start wrote.
+    assert not np.any(bucketed.state.particle_x.to_numpy()[n:])
+
+
+def test_bucket_sizes_and_switch(buckets_reset):
+    assert [capacity.bucket(n) for n in (1, 64, 65, 1000, 1024, 1025)] == [64, 64, 128, 1024, 1024, 2048]
+    capacity.set_enabled(True)
+    assert capacity.enabled()
+    capacity.set_enabled(False)
+    assert not capacity.enabled()
+    with pytest.raises(ParameterError, match="size_buckets must be True, False or None, got 'yes'"):
+        capacity.set_enabled("yes")
+
+
+def test_pool_returns_a_dropped_owners_fields_oldest_first():
+    class Owner:
+        pass
+
+    a, b = Owner(), Owner()
+    fa = capacity.take(a, "test_role", ti.f32, 8, (3,))
+    fb = capacity.take(b, "test_role", ti.f32, 8, (3,))
+    assert fa is not fb
+    del b, a  # collected in the other order than made
+    gc.collect()
+    c, d = Owner(), Owner()
+    assert capacity.take(c, "test_role", ti.f32, 8, (3,)) is fa
+    assert capacity.take(d, "test_role", ti.f32, 8, (3,)) is fb
+    # Another role, shape or dtype never shares a field.
+    assert capacity.take(c, "other_role", ti.f32, 8, (3,)) is not fa
+    assert capacity.take(d, "test_role", ti.f32, 16, (3,)) is not fb
+    # A new Taichi program invalidates every field: the pool starts empty.
+    del c, d
+    gc.collect()
+    assert capacity.pooled_count() >= 2
+    ta.init("cpu", precision="f64")
+    assert capacity.pooled_count() == 0
