@@ -71,7 +71,8 @@ class Model(*MODEL_PARTS):
         elements = ([self.springs] if self.springs is not None else []) + list(element_terms or ())
         # Pointwise terms first: the order in which solvers sum forces (and the settings list).
         self.point_terms = tuple(terms)
-        for t in self.point_terms:  # a term that keeps run-time parameters in fields allocates them now
+        # A term that keeps arrays or run-time parameters in fields places them now (capacity buckets).
+        for t in (*self.point_terms, *(element_terms or ())):
             bind = getattr(t, "bind", None)
             if bind is not None:
                 bind(self)

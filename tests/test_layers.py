@@ -24,7 +24,18 @@ PACKAGE_DIR = Path(__file__).resolve().parent.parent / PACKAGE
 # "" is the package's own __init__ (the public names) only.
 LAYERS = [
     # foundations: errors, argument checks, the Taichi runtime, the failure policy, signals
-    ("errors", "validate", "rng", "runtime", "health", "interrupts", "compile_clock", "device_probe"),
+    # (capacity: the size buckets and field pool the runtime's init switches)
+    (
+        "errors",
+        "validate",
+        "rng",
+        "capacity",
+        "runtime",
+        "health",
+        "interrupts",
+        "compile_clock",
+        "device_probe",
+    ),  # fmt: skip
     # file formats and atomic writes of plain arrays (no model, no scene)
     ("io.atomic", "io.read_guard", "io.obj_scan", "io.export", "io.lock", "io.manifest"),
     # meshes and cloth materials from arrays or files; what a frame shows (plain data: points, meshes,

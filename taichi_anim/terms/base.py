@@ -42,6 +42,7 @@ class; `TermBounds` gives the defaults, and `check_protocol` refuses a term that
 import numpy as np
 import taichi as ti
 
+from .. import capacity
 from ..errors import ParameterError
 from ..runtime import data_oriented, np_float
 from .stiffness import BlockPart
@@ -125,10 +126,18 @@ class ElementCache:
     pass (E, arity) [N]; with implicit solves also df/dx v (E, arity) [N/s] and the blocks
     S_ab = -(h df_a/dv_b + h^2 df_a/dx_b) (E, arity, arity) [kg]."""
 
-    def __init__(self, count: int, arity: int, implicit: bool):
-        self.f = ti.Vector.field(3, float, (count, arity))
-        self.kxv = ti.Vector.field(3, float, (count, arity)) if implicit else None
-        self.S = ti.Matrix.field(3, 3, float, (count, arity, arity)) if implicit else None
+    def __init__(self, count: int, arity: int, implicit: bool, make=capacity.plain, role: str = "element"):
+        self.f = make(self, f"{role}_f", float, (count, arity), (3,))
+        self.kxv = make(self, f"{role}_kxv", float, (count, arity), (3,)) if implicit else None
+        self.S = make(self, f"{role}_S", float, (count, arity, arity), (3, 3)) if implicit else None
+
+
+def _padded(a, rows: int, dtype) -> np.ndarray:
+    """`a` with zero rows up to `rows` (capacity buckets' padding), as dtype."""
+    a = np.asarray(a)
+    out = np.zeros((rows, *a.shape[1:]), dtype=dtype)
+    out[: len(a)] = a
+    return out
 
 
 def adjacency(vertices: np.ndarray, particle_count: int):
@@ -168,18 +177,66 @@ class ElementTerm(TermBounds):
         self.particle_count = particle_count
         self.vertices = vertices
         self.entry_count = self.count * self.arity
-        start, entry = adjacency(vertices, particle_count)
-        self.element_vertex = ti.Vector.field(self.arity, ti.i32, self.count)
-        self.element_vertex.from_numpy(vertices.astype(np.int32))
-        self.adj_start = ti.field(ti.i32, particle_count + 1)
-        self.adj_entry = ti.field(ti.i32, self.entry_count)
-        self.adj_start.from_numpy(start)
-        self.adj_entry.from_numpy(entry)
         self._energy_fields = None
+        # Fields: exactly sized now, or (capacity buckets on: a model will take the term) at bind().
+        self.buckets = False  # kernels branch on it at compile time
+        self.element_live = None
+        self.particle_rows = self.element_rows = None
+        self._make = capacity.plain
+        if not capacity.enabled():
+            self._place(capacity.plain, particle_count, self.count)
+
+    def bind(self, model) -> None:
+        """Called by the Model that takes the term: under capacity buckets (capacity.py) its arrays are
+        placed at the model's particle capacity and the bucket of its element count, from the model's
+        pool, and loops run to the live element count (a field read), so that another size compiles
+        nothing; otherwise they stay (or are made) exactly sized."""
+        if model.size_buckets and not self.buckets:
+            self.buckets = True
+            self._make = model.new_field
+            self.element_live = model.new_field(self, f"{self._role()}_live", ti.i32, ())
+            self.element_live[None] = self.count
+            self._place(model.new_field, model.particle_capacity, capacity.bucket(self.count))
+        elif self.particle_rows is None:
+            self._place(capacity.plain, self.particle_count, self.count)
+
+    def _role(self) -> str:
+        return type(self).__name__
+
+    def _place(self, make, particle_rows: int, element_rows: int) -> None:
+        """Allocate and fill the term's arrays for `particle_rows` particles and `element_rows` elements
+        (rows past the live counts: zeros, which no loop reaches), then the subclass's (place_arrays)."""
+        role = self._role()
+        self.particle_rows, self.element_rows = particle_rows, element_rows
+        start, entry = adjacency(self.vertices, particle_rows)
+        self.element_vertex = make(self, f"{role}_vertex", ti.i32, element_rows, (self.arity,))
+        self.element_vertex.from_numpy(_padded(self.vertices, element_rows, np.int32))
+        self.adj_start = make(self, f"{role}_adj_start", ti.i32, particle_rows + 1)
+        self.adj_entry = make(self, f"{role}_adj_entry", ti.i32, element_rows * self.arity)
+        self.adj_start.from_numpy(start)
+        self.adj_entry.from_numpy(_padded(entry, element_rows * self.arity, np.int32))
+        self.place_arrays(make, element_rows)
+
+    def place_arrays(self, make, rows: int) -> None:
+        """A subclass's own per-element arrays, `rows` rows from make(owner, role, dtype, shape, dims)
+        (see _place); none here."""
+
+    def _ensure_placed(self) -> None:
+        if self.particle_rows is None:  # used outside a model with buckets on: exact sizes
+            self._place(capacity.plain, self.particle_count, self.count)
+
+    @ti.func
+    def live_elements(self):
+        """Elements the loops run over: the live count under buckets (a field read), else a constant."""
+        if ti.static(self.buckets):
+            return self.element_live[None]
+        else:
+            return self.count
 
     def make_cache(self, particle_count: int, implicit: bool) -> ElementCache:
         """This term's scratch for one solver: an ElementCache (with the implicit blocks if `implicit`)."""
-        return ElementCache(self.count, self.arity, implicit)
+        self._ensure_placed()
+        return ElementCache(self.element_rows, self.arity, implicit, self._make, self._role())
 
     # ---- element gathers: stacked element state from fields
 
@@ -202,7 +259,7 @@ class ElementTerm(TermBounds):
         """A loop over elements: each element's forces [N] at fields (xf [m], vf [m/s]) at time t [s] into
         cache.f."""
         ti.loop_config(serialize=serial)
-        for e in range(self.count):
+        for e in range(self.live_elements()):
             F = self.element_force(e, self.stack(e, xf), self.stack(e, vf), t)
             for a in ti.static(range(self.arity)):
                 cache.f[e, a] = ti.Vector([F[3 * a], F[3 * a + 1], F[3 * a + 2]])
@@ -223,7 +280,7 @@ class ElementTerm(TermBounds):
         """A loop over elements: forces [N], df/dx v [N/s] and the blocks S = -(h df/dv + h^2 df/dx) [kg] into
         the cache, for step h [s]."""
         ti.loop_config(serialize=serial)
-        for e in range(self.count):
+        for e in range(self.live_elements()):
             F, S, KV = self.element_linear(e, self.stack(e, xf), self.stack(e, vf), t, h)
             for a in ti.static(range(self.arity)):
                 cache.f[e, a] = ti.Vector([F[3 * a], F[3 * a + 1], F[3 * a + 2]])
@@ -271,10 +328,15 @@ class ElementTerm(TermBounds):
 
     def energy(self, x, masses=None) -> float:
         """Energy [J] of the term at positions x (N,3) [m]."""
+        self._ensure_placed()
         if self._energy_fields is None:  # once: a new field would recompile the kernel per call
-            self._energy_fields = (ti.Vector.field(3, float, self.particle_count), ti.field(float, ()))
+            role = self._role()
+            self._energy_fields = (
+                self._make(self, f"{role}_energy_x", float, self.particle_rows, (3,)),
+                self._make(self, f"{role}_energy", float, ()),
+            )
         xf, out = self._energy_fields
-        xf.from_numpy(np.asarray(x, dtype=np_float()))
+        xf.from_numpy(_padded(x, self.particle_rows, np_float()))
         self._energy(xf, out)
         return float(out[None])
 
@@ -290,7 +352,7 @@ class ElementTerm(TermBounds):
     def _energy(self, xf: ti.template(), out: ti.template()):
         out[None] = 0.0
         ti.loop_config(serialize=True)  # a fixed summation order
-        for e in range(self.count):
+        for e in range(self.live_elements()):
             out[None] += self.element_energy(e, self.stack(e, xf))
 
     def element_arrays(self, x, v, t: float = 0.0, h: float = 1.0):
@@ -298,22 +360,24 @@ class ElementTerm(TermBounds):
         and from element_linear: F_lin (E, 3*arity), S (E, 3*arity, 3*arity), KV (E, 3*arity). For
         tests (finite-difference checks) and reports."""
         n3 = 3 * self.arity
+        self._ensure_placed()
         fields = getattr(self, "_array_fields", None)
         if fields is None:
+            rows, elements = self.particle_rows, self.element_rows
             fields = (
-                ti.Vector.field(3, float, self.particle_count),
-                ti.Vector.field(3, float, self.particle_count),
-                ti.Vector.field(n3, float, self.count),
-                ti.Vector.field(n3, float, self.count),
-                ti.Matrix.field(n3, n3, float, self.count),
-                ti.Vector.field(n3, float, self.count),
+                ti.Vector.field(3, float, rows),
+                ti.Vector.field(3, float, rows),
+                ti.Vector.field(n3, float, elements),
+                ti.Vector.field(n3, float, elements),
+                ti.Matrix.field(n3, n3, float, elements),
+                ti.Vector.field(n3, float, elements),
             )
             self._array_fields = fields
         xf, vf, F, FL, S, KV = fields
-        xf.from_numpy(np.asarray(x, dtype=np_float()))
-        vf.from_numpy(np.asarray(v, dtype=np_float()))
+        xf.from_numpy(_padded(x, self.particle_rows, np_float()))
+        vf.from_numpy(_padded(v, self.particle_rows, np_float()))
         self._element_arrays(xf, vf, F, FL, S, KV, t, h)
-        return tuple(a.to_numpy().astype(np.float64) for a in (F, FL, S, KV))
+        return tuple(a.to_numpy()[: self.count].astype(np.float64) for a in (F, FL, S, KV))
 
     @ti.kernel
     def _element_arrays(
@@ -327,7 +391,7 @@ class ElementTerm(TermBounds):
         t: float,
         h: float,
     ):
-        for e in range(self.count):
+        for e in range(self.live_elements()):
             X = self.stack(e, xf)
             V = self.stack(e, vf)
             F[e] = self.element_force(e, X, V, t)

@@ -46,10 +46,10 @@ import math
 import numpy as np
 import taichi as ti
 
-from .. import validate
+from .. import capacity, validate
 from ..errors import ParameterError
 from ..runtime import data_oriented, np_float
-from .base import ElementTerm
+from .base import ElementTerm, _padded
 
 _TINY = 1e-30  # [m^2, m^4] floor of |e|^2 and |n|^2: representable in f32, far below any real mesh
 
@@ -157,13 +157,15 @@ class BendingDihedral(ElementTerm):
                 f"hinges: {bad.size} hinges have a zero-area rest triangle; first hinge {k} "
                 f"{hin[k].tolist()} (rest areas {area1[k]:g}, {area2[k]:g} m^2)"
             )
-        super().__init__(particle_count, hin)
         self.rest_angle = hinge_angles(rest, hin)
         self.weight = ee / (area1 + area2)
-        # Per hinge: theta0, k w, beta (beta per hinge so a Builder can merge garments with their own).
-        param = np.stack([self.rest_angle, self.stiffness * self.weight, np.full(len(hin), self.beta)], 1)
-        self.hinge_param = ti.Vector.field(3, float, self.count)
-        self.hinge_param.from_numpy(param.astype(np_float()))
+        super().__init__(particle_count, hin)
+
+    def place_arrays(self, make, rows: int) -> None:
+        """Per hinge: theta0, k w, beta (beta per hinge so a Builder can merge garments with their own)."""
+        param = np.stack([self.rest_angle, self.stiffness * self.weight, np.full(self.count, self.beta)], 1)
+        self.hinge_param = make(self, "hinge_param", float, rows, (3,))
+        self.hinge_param.from_numpy(_padded(param, rows, np_float()))
 
     @classmethod
     def from_mesh(cls, particle_count: int, triangles, rest_positions, **kw) -> "BendingDihedral":
@@ -220,7 +222,8 @@ class BendingDihedral(ElementTerm):
     def make_cache(self, particle_count: int, implicit: bool) -> "HingeCache":
         """This term's scratch for one solver: per-hinge forces and, if `implicit`, one gradient vector per
         vertex."""
-        return HingeCache(self.count, implicit)
+        self._ensure_placed()
+        return HingeCache(self.element_rows, implicit, self._make)
 
     @ti.func
     def linearize(
@@ -228,7 +231,7 @@ class BendingDihedral(ElementTerm):
     ):
         """A loop over hinges: forces [N] and the rank-one linearisation for step h [s] into the cache."""
         ti.loop_config(serialize=serial)
-        for e in range(self.count):
+        for e in range(self.live_elements()):
             X = self.stack(e, xf)
             V = self.stack(e, vf)
             d, g, p = self.excess(e, X)
@@ -265,7 +268,7 @@ class HingeCache:
     """A solver's scratch for the bending term: forces (H,4) [N]; with implicit solves df/dx v (H,4) and
     the rank-one factor s (H,4) of S = s s^T."""
 
-    def __init__(self, count: int, implicit: bool):
-        self.f = ti.Vector.field(3, float, (count, 4))
-        self.kxv = ti.Vector.field(3, float, (count, 4)) if implicit else None
-        self.s = ti.Vector.field(3, float, (count, 4)) if implicit else None
+    def __init__(self, count: int, implicit: bool, make=capacity.plain):
+        self.f = make(self, "hinge_f", float, (count, 4), (3,))
+        self.kxv = make(self, "hinge_kxv", float, (count, 4), (3,)) if implicit else None
+        self.s = make(self, "hinge_s", float, (count, 4), (3,)) if implicit else None

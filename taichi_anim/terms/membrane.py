@@ -35,7 +35,7 @@ import taichi as ti
 from .. import validate
 from ..errors import ParameterError
 from ..runtime import data_oriented, np_float
-from .base import ElementTerm
+from .base import ElementTerm, _padded
 
 
 def plane_stress_matrix(youngs, poisson, youngs_warp=None, youngs_weft=None, shear_modulus=None):
@@ -140,6 +140,7 @@ class MembraneStVK(ElementTerm):
         self.beta = validate.non_negative("damping", damping)
         warp = np.asarray(validate.unit3("warp_direction", warp_direction))
         dm_inv, area = rest_frames(rest, tri.astype(np.int64), warp)
+        self._rest = (dm_inv, area)  # placed with the term's other arrays (place_arrays)
         super().__init__(particle_count, tri)
         self.C = C
         self.c_rows = tuple(tuple(float(c) for c in row) for row in C)  # compile-time constants
@@ -149,10 +150,14 @@ class MembraneStVK(ElementTerm):
             self.moduli.update(youngs_warp=youngs_warp, youngs_weft=youngs_weft, shear_modulus=shear_modulus)
             self.moduli.update(warp_direction=tuple(warp.tolist()))
         self.rest_area = area
-        self.dm_inv = ti.Matrix.field(2, 2, float, self.count)
-        self.area = ti.field(float, self.count)
-        self.dm_inv.from_numpy(dm_inv.astype(np_float()))
-        self.area.from_numpy(area.astype(np_float()))
+
+    def place_arrays(self, make, rows: int) -> None:
+        """Per triangle the inverse rest frame D_m^-1 (2x2) and the rest area [m^2], `rows` rows."""
+        dm_inv, area = self._rest
+        self.dm_inv = make(self, "membrane_dm_inv", float, rows, (2, 2))
+        self.area = make(self, "membrane_area", float, rows)
+        self.dm_inv.from_numpy(_padded(dm_inv, rows, np_float()))
+        self.area.from_numpy(_padded(area, rows, np_float()))
 
     def settings(self) -> dict:
         """The term's settings for run.json."""
