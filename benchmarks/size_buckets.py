@@ -32,17 +32,32 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from harness import Page, log, parse_args  # noqa: E402
 
-SIZE_OPTION = {"fountain": "particles", "cloth": "resolution", "flag": "resolution"}  # build() keyword
+# The build() keyword a size sets.
+SIZE_OPTION = {"fountain": "particles", "cloth": "resolution", "flag": "resolution", "spheres": "particles"}
 # Cloth sizes that are not powers of two, so the padded rows are there (48^2 -> 4096 rows, 96^2 -> 16384);
 # the flag: a membrane, bending and aerodynamics, stepped by implicit Euler with PCG (the linear solver's
 # live row and block counts).
-RUN_SIZES = {"fountain": (10_000, 100_000, 1_000_000), "cloth": (48, 96, 128), "flag": (40, 64)}
-QUICK_RUN_SIZES = {"fountain": (2000,), "cloth": (16, 24), "flag": (20,)}
+RUN_SIZES = {
+    "fountain": (10_000, 100_000, 1_000_000),
+    "cloth": (48, 96, 128),
+    "flag": (40, 64),
+    "spheres": (10_000, 100_000),
+}
+QUICK_RUN_SIZES = {"fountain": (2000,), "cloth": (16, 24), "flag": (20,), "spheres": (2000,)}
 # Two sizes in one bucket: 3000 and 3900 particles -> 4096; 30^2 = 900 and 31^2 = 961 vertices -> 1024;
 # the flag at 36 and 39 (864 and 1014 vertices -> 1024; triangles -> 2048, hinges -> 4096).
-PAIRS = {"fountain": (3000, 3900), "cloth": (30, 31), "flag": (36, 39)}
+# Spheres 3000 and 3500: the demo's column is 25 layers high either way, so its box is the same (a
+# collider's shape is a compile-time constant, and the demo's box grows with the column).
+PAIRS = {"fountain": (3000, 3900), "cloth": (30, 31), "flag": (36, 39), "spheres": (3000, 3500)}
+# The spheres demo steps 240 times a frame; 24 keep a 10^5-sphere run of 30 frames to seconds.
+BUILD_OPTIONS = {"spheres": {"steps_per_frame": 24}}
 COMPILE_FRAMES = 5
-INTEGRATORS = {"fountain": "symplectic_euler", "cloth": "symplectic_euler", "flag": "implicit_euler"}
+INTEGRATORS = {
+    "fountain": "symplectic_euler",
+    "cloth": "symplectic_euler",
+    "flag": "implicit_euler",
+    "spheres": "symplectic_euler",
+}
 MODES = {"off": False, "on": True}
 RESULT_MARK = "SIZE_BUCKETS_RESULT "  # the worker's answer line (Taichi prints its banner to stdout too)
 
@@ -54,7 +69,8 @@ RESULT_MARK = "SIZE_BUCKETS_RESULT "  # the worker's answer line (Taichi prints 
 def build(scene: str, size: int):
     from taichi_anim.scenes import SCENES
 
-    return SCENES[scene].build(**{SIZE_OPTION[scene]: size, "integrator": INTEGRATORS[scene]})
+    options = {SIZE_OPTION[scene]: size, "integrator": INTEGRATORS[scene], **BUILD_OPTIONS.get(scene, {})}
+    return SCENES[scene].build(**options)
 
 
 def field_bytes(f) -> int:
@@ -281,13 +297,13 @@ def memory_table(page: Page, timing: list) -> None:
 
 def write_page(args, timing: list, procs: list, single: list) -> None:
     page = Page(
-        "size_buckets",
+        "size_buckets" if args.scenes is None else "size_buckets_subset",
         "Capacity buckets: run time, compiles across sizes, memory",
         args,
         {
-            "scenes": "fountain (particles), cloth and flag (resolution); integrators "
+            "scenes": "fountain and spheres (particles), cloth and flag (resolution); integrators "
             + ", ".join(f"{k} {v}" for k, v in INTEGRATORS.items())
-            + "; CPU, f32",
+            + "; spheres with steps_per_frame=24; CPU, f32",
             "run time": f"ms per frame of {args.frames} frames after 1 warm-up frame, ti.sync() before each "
             f"clock read; median of {args.reps} repetition(s), each a fresh process per mode, modes "
             "alternating (off-on, on-off, ...), offline cache warmed by one run per mode and size",
@@ -312,6 +328,8 @@ def main(argv=None) -> int:
     def options(p):
         p.add_argument("--reps", type=int, default=None, help="repetitions per mode (default 5; quick 1)")
         p.add_argument("--frames", type=int, default=None, help="timed frames (default 30; quick 3)")
+        p.add_argument("--scenes", nargs="+", choices=sorted(RUN_SIZES), default=None,
+                       help="only these scenes (the page is then size_buckets_subset)")  # fmt: skip
         # internal: the parent hands a measurement's spec (JSON) to a worker process
         p.add_argument("--worker", default=None, help=argparse.SUPPRESS)
 
@@ -322,12 +340,15 @@ def main(argv=None) -> int:
     args.reps = args.reps or (1 if args.quick else 5)
     args.frames = args.frames or (3 if args.quick else 30)
     sizes = QUICK_RUN_SIZES if args.quick else RUN_SIZES
+    chosen = args.scenes or list(RUN_SIZES)
+    sizes = {k: v for k, v in sizes.items() if k in chosen}
+    pairs = [k for k in PAIRS if k in chosen]
     with tempfile.TemporaryDirectory(prefix="size_buckets_") as tmp_name:
         tmp = Path(tmp_name)
         caches = {mode: Path(tempfile.mkdtemp(prefix=f"run_{mode}_", dir=tmp)) for mode in MODES}
         timing = [run_times(sc, n, args.reps, args.frames, caches) for sc in sizes for n in sizes[sc]]
-        procs = [across_processes(sc, on, tmp) for sc in PAIRS for on in MODES.values()]
-        single = [one_process(sc, on, tmp) for sc in PAIRS for on in MODES.values()]
+        procs = [across_processes(sc, on, tmp) for sc in pairs for on in MODES.values()]
+        single = [one_process(sc, on, tmp) for sc in pairs for on in MODES.values()]
     write_page(args, timing, procs, single)
     return 0
 

@@ -95,6 +95,8 @@ class Model(*MODEL_PARTS):
         entries = sum(t.entry_count for t in self.element_terms)
         # With buckets the choices go by capacity, so that every size of a bucket compiles the same kernels.
         sized = self.particle_capacity if self.size_buckets else n
+        if self.size_buckets:  # each term's entries at its element bucket (springs: 2 per spring)
+            entries = sum(capacity.bucket(t.count) * (t.entry_count // max(t.count, 1)) for t in elements)
         self.work = sized + entries  # the size that decides fused frames (Stepper.frame_mode)
         self.serial = serial_loops(sized + entries // 8)
 

@@ -16,12 +16,12 @@ def spring_particle(*, k: float, m: float = 1.0, c: float = 0.0, rest: float = 1
 
 def run(model, state, integrator, dt: float, steps: int, record=None):
     """Step `steps` times; return (steps+1, N, 3) positions and velocities if `record`."""
-    xs, vs = [state.particle_x.to_numpy()], [state.particle_v.to_numpy()]
+    xs, vs = [state.positions()], [state.velocities()]
     for _ in range(steps):
         integrator.step(model, state, dt)
         if record:
-            xs.append(state.particle_x.to_numpy())
-            vs.append(state.particle_v.to_numpy())
+            xs.append(state.positions())
+            vs.append(state.velocities())
     return np.array(xs), np.array(vs)
 
 

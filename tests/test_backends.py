@@ -53,8 +53,8 @@ def sphere_pile(arch: str, method: str):
     scene = make_scene("spheres", particles=4000, seed=1)
     b = ta.Builder()  # the same spheres with the neighbour structure under test
     b.add_force_gravity()
-    x0 = scene.state.particle_x.to_numpy()
-    v0 = scene.state.particle_v.to_numpy()
+    x0 = scene.state.positions()
+    v0 = scene.state.velocities()
     b.add_particles(x0, v0, mass=1e-3, radius=scene.options["radius"])
     b.add_collider_box(*scene.bounds, restitution=0.3, friction=0.4)
     b.add_sphere_contacts(restitution=0.5, friction=0.4, neighbor_search=method)
@@ -63,7 +63,7 @@ def sphere_pile(arch: str, method: str):
     integ = ta.make_integrator("symplectic_euler")
     for _ in range(6 * scene.substeps):
         integ.step(model, state, scene.dt)
-    falling = state.particle_x.to_numpy()
+    falling = state.positions()
     for _ in range(6 * scene.substeps):
         integ.step(model, state, scene.dt)
     return falling, integ.stepper_for(model).contacts.overlap_stats(model, state)
@@ -101,7 +101,7 @@ def hanging_cloth(arch: str, integrator: str, steps: int, dt: float):
     integ = ta.make_integrator(integrator, **options)
     for _ in range(steps):
         integ.step(model, state, dt)
-    return state.particle_x.to_numpy(), getattr(integ, "last_solve", None)
+    return state.positions(), getattr(integ, "last_solve", None)
 
 
 @pytest.mark.gpu

@@ -73,7 +73,7 @@ def test_cloth_masses_and_springs_from_the_material():
     b = ta.Builder()
     b.add_cloth_grid(size=(2.0, 1.0), resolution=(5, 3), material=mat, pinned=[0])
     model = b.finalize()
-    mass = model.particle_mass.to_numpy()
+    mass = model.particle_masses()
     # Lumped masses sum to density * area once the pinned vertex's share is added back.
     assert mass[0] == 0.0
     # Vertex 0 lies on the split diagonal: two triangles of 0.125 m^2, a third of each.
@@ -88,7 +88,7 @@ def test_cloth_masses_and_springs_from_the_material():
 def settle(model, state, integ, steps, dt):
     for _ in range(steps):
         integ.step(model, state, dt)
-    return state.particle_x.to_numpy(), state.particle_v.to_numpy()
+    return state.positions(), state.velocities()
 
 
 @pytest.mark.parametrize("mode", ["projection", "backward"])
@@ -124,7 +124,7 @@ def test_friction_holds_cloth_on_a_slope():
         b.add_collider_plane(normal, 0.0, restitution=0.0, friction=mu)
         model = b.finalize()
         state = model.state()
-        x0 = state.particle_x.to_numpy()
+        x0 = state.positions()
         x, _ = settle(model, state, ta.IntegratorImplicitEuler(tol=1e-6), 60, 1 / 120)
         travelled.append(np.linalg.norm(x - x0, axis=1).mean())
     # Without friction it slides about g sin(20) t^2 / 2 = 0.42 m in 0.5 s; with friction ~0.
@@ -143,7 +143,7 @@ def test_sphere_sweep_stops_a_fast_particle_in_front_of_the_ball():
         model = b.finalize()
         state = model.state()
         ta.IntegratorSymplecticEuler(collision_mode=mode).step(model, state, 1 / 60)
-        ends[mode] = state.particle_x.to_numpy()[0]
+        ends[mode] = state.positions()[0]
     assert ends["backward"][0] == pytest.approx(-0.11, abs=1e-9)
     assert ends["projection"][0] > 0.5
 
@@ -158,5 +158,5 @@ def test_implicit_cloth_step_is_identical_on_one_and_two_threads():
         model = b.finalize()
         state = model.state()
         settle(model, state, ta.IntegratorImplicitEuler(tol=1e-5), 5, 1 / 60)
-        results.append(state.particle_x.to_numpy())
+        results.append(state.positions())
     assert np.array_equal(results[0], results[1])

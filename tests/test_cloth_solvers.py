@@ -63,7 +63,7 @@ def build(scene, copies=1):
 
 
 def masses(model):
-    return model.particle_mass.to_numpy().astype(np.float64)
+    return model.particle_masses()
 
 
 def spring_lengths(model, x):
@@ -73,7 +73,7 @@ def spring_lengths(model, x):
 
 def deformed(model, scale, seed=0):
     """Rest positions scaled by `scale` about their centroid plus a small random perturbation."""
-    x0 = model.state().particle_x.to_numpy().astype(np.float64)
+    x0 = model.state().positions()
     c = x0.mean(axis=0)
     rng = np.random.default_rng(seed)
     return c + scale * (x0 - c) + 1e-3 * rng.normal(size=x0.shape) * SIZE[0] / NX
@@ -350,7 +350,7 @@ def soft_cloth_reference():
     from scipy.integrate import solve_ivp
 
     model = soft_cloth()
-    x0 = model.state().particle_x.to_numpy().astype(np.float64)
+    x0 = model.state().positions()
     n = len(x0)
     m = masses(model)
     inv_m = np.divide(1.0, m, out=np.zeros_like(m), where=m > 0)
@@ -372,7 +372,7 @@ def soft_cloth_error(integrator, model, state, steps):
     state.particle_v.from_numpy(np.zeros_like(x0))
     for _ in range(steps):
         integrator.step(model, state, T / steps)
-    x = state.particle_x.to_numpy()
+    x = state.positions()
     pinned = masses(model) == 0
     np.testing.assert_array_equal(x[pinned], x0[pinned])  # kinematic: velocity 0 kept
     return float(np.abs(x - reference).max())
@@ -382,7 +382,7 @@ def test_numpy_forces_are_the_model_forces():
     # The reference ODE is only a reference if its right-hand side is the engine's force.
     model = soft_cloth()
     rng = np.random.default_rng(9)
-    x = model.state().particle_x.to_numpy() + 0.02 * rng.normal(size=(16, 3))
+    x = model.state().positions() + 0.02 * rng.normal(size=(16, 3))
     v = rng.normal(size=(16, 3))
     np.testing.assert_allclose(model.forces(x, v), numpy_forces(model, x, v), rtol=0, atol=1e-13)
 
@@ -446,7 +446,7 @@ def one_implicit_step(model, x0, v0, h, **options):
     state.particle_v.from_numpy(v0)
     integ = ta.IntegratorImplicitEuler(tol=1e-12, max_iterations=2000, **options)
     integ.step(model, state, h)
-    return state.particle_v.to_numpy(), state.particle_x.to_numpy(), integ
+    return state.velocities(), state.positions(), integ
 
 
 @pytest.mark.parametrize("line_search", [False, True], ids=["plain", "line_search"])

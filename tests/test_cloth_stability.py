@@ -13,7 +13,7 @@ GRAVITY = 9.81
 
 
 def masses(model):
-    return model.particle_mass.to_numpy().astype(np.float64)
+    return model.particle_masses()
 
 
 def scaled_material(scale, damping=True):
@@ -59,12 +59,12 @@ def test_hanging_cloth_reaches_static_equilibrium():
     m = masses(model)
     free = m > 0
     assert np.array_equal(np.flatnonzero(~free), cloth.pinned)
-    x0 = state.particle_x.to_numpy()
+    x0 = state.positions()
     integ = ta.IntegratorImplicitEuler(tol=1e-8, max_iterations=500)
     for _ in range(90):  # 1.5 s
         integ.step(model, state, 1.0 / 60.0)
-    x = state.particle_x.to_numpy()
-    v = state.particle_v.to_numpy()
+    x = state.positions()
+    v = state.velocities()
     np.testing.assert_array_equal(x[~free], x0[~free])  # pins did not move
     assert np.abs(x - x0).max() > 1e-3  # the cloth did sag: equilibrium is not the start
     assert np.linalg.norm(v, axis=1).max() < 1e-6
@@ -106,7 +106,7 @@ def stiffness_sweep_run(scale, options=(), steps=SWEEP_STEPS):
     model = b.finalize()
     state = model.state()
     m = masses(model)
-    x = state.particle_x.to_numpy()
+    x = state.positions()
     x0 = x.copy()
     options = {k: dict(v) if isinstance(v, tuple) else v for k, v in options}
     integ = ta.IntegratorImplicitEuler(**options)
@@ -123,8 +123,8 @@ def stiffness_sweep_run(scale, options=(), steps=SWEEP_STEPS):
     octile = h * (cells.max(-1) - cells.min(-1) + np.sqrt(2) * cells.min(-1))  # (N, pins)
     for _ in range(steps):
         integ.step(model, state, SWEEP_DT)
-        x = state.particle_x.to_numpy()
-        v = state.particle_v.to_numpy()
+        x = state.positions()
+        v = state.velocities()
         energies.append(energy(model, m, x, v))
         speed.append(np.linalg.norm(v, axis=1).max())
         length = np.linalg.norm(x[sp.pairs[:, 0]] - x[sp.pairs[:, 1]], axis=1)
@@ -230,7 +230,7 @@ def omega_max(scale):
     (all 3N columns at once on a model of 6N cloth copies)."""
     model = free_cloth(scale)
     n = model.particle_count
-    x0 = model.state().particle_x.to_numpy().astype(np.float64)
+    x0 = model.state().positions()
     e = 1e-6
     basis = np.eye(3 * n).reshape(3 * n, n, 3)
     xs = np.concatenate([x0 + e * basis, x0 - e * basis]).reshape(-1, 3)
@@ -250,7 +250,7 @@ def largest_stable_dt(scale, lo, hi, bisections=6, steps=2000):
     state = model.state()
     integ = ta.IntegratorSymplecticEuler()
     integ.stepper_for(model).watchdog.disable()  # unstable runs are the point: this test stops them itself
-    x0 = state.particle_x.to_numpy()
+    x0 = state.positions()
     pert = 1e-7 * np.random.default_rng(0).normal(size=x0.shape)
     limit = 1e3 * np.abs(pert).max()
 
@@ -261,7 +261,7 @@ def largest_stable_dt(scale, lo, hi, bisections=6, steps=2000):
         state.particle_v.from_numpy(np.zeros_like(x0))
         for k in range(steps):
             integ.step(model, state, dt)
-            if k % 20 == 19 and np.abs(state.particle_x.to_numpy() - x0).max() > limit:
+            if k % 20 == 19 and np.abs(state.positions() - x0).max() > limit:
                 return False
         return True
 
@@ -314,13 +314,13 @@ def sphere_drop(name, mode, dt, steps):
     model = b.finalize()
     state = model.state()
     integ = ta.make_integrator(name, collision_mode=mode)
-    x0 = state.particle_x.to_numpy()
+    x0 = state.positions()
     over = np.linalg.norm(x0[:, [0, 2]] - CENTER[[0, 2]], axis=1) < RADIUS
     gap, below, contact, path = [], [], [], []
     x_prev = x0
     for _ in range(steps):
         integ.step(model, state, dt)
-        x = state.particle_x.to_numpy()
+        x = state.positions()
         d = np.linalg.norm(x - CENTER, axis=1) - RADIUS - THICKNESS
         gap.append(d.min())
         contact.append(int(np.sum(d < 1e-6)))
@@ -379,7 +379,7 @@ def test_backward_sweep_stops_particles_that_start_on_the_surface_by_round_off()
     model = b.finalize()
     state = model.state()
     ta.make_integrator("symplectic_euler", collision_mode="backward").step(model, state, 1.0 / 60.0)
-    x = state.particle_x.to_numpy()
+    x = state.positions()
     side = np.sum(x * directions, axis=1)  # > 0: still on the side it started
     assert np.all(side > 0), side
 
@@ -396,5 +396,5 @@ def test_backward_collision_stops_a_particle_the_step_would_carry_through_the_ba
     model = b.finalize()
     state = model.state()
     ta.make_integrator("symplectic_euler", collision_mode="backward").step(model, state, 1.0 / 60.0)
-    x = state.particle_x.to_numpy()[0]
+    x = state.positions()[0]
     assert x[1] > CENTER[1] and np.linalg.norm(x - CENTER) >= RADIUS + r - 1e-12, x

@@ -27,7 +27,7 @@ def apex_heights(mode, e, dt, t_end):
     ys = []
     for _ in range(int(t_end / dt)):
         integ.step(model, state, dt)
-        ys.append(state.particle_x.to_numpy()[0, 1])
+        ys.append(state.positions()[0, 1])
     ys = np.array(ys)
     peaks = (ys[1:-1] > ys[:-2]) & (ys[1:-1] >= ys[2:]) & (ys[1:-1] > 1e-3)
     return ys[1:-1][peaks]
@@ -51,7 +51,7 @@ def test_backward_search_catches_particle_crossing_thin_slab_in_one_step():
     for mode in MODES:
         model, state = one_particle((0, 0.5, 0), (0, -100, 0), gravity=False, colliders=slab, e=0.5)
         ta.IntegratorSymplecticEuler(collision_mode=mode).step(model, state, 0.01)
-        ends[mode] = (state.particle_x.to_numpy()[0], state.particle_v.to_numpy()[0])
+        ends[mode] = (state.positions()[0], state.velocities()[0])
     x, v = ends["backward"]
     # Hit at tau = 0.49 of the step, bounce at 50 m/s, fly the remaining 0.51 * 0.01 s upwards.
     np.testing.assert_allclose(v, [0, 50, 0], atol=1e-9)
@@ -95,9 +95,9 @@ def test_coulomb_friction_decelerates_sliding_particle_at_mu_g(mode):
     integ = ta.IntegratorSymplecticEuler(collision_mode=mode)
     for _ in range(steps):
         integ.step(model, state, dt)
-    v = state.particle_v.to_numpy()[0]
+    v = state.velocities()[0]
     np.testing.assert_allclose(v[0], v0 - mu * 9.81 * steps * dt, rtol=1e-6)
-    assert abs(v[1]) < 1e-12 and state.particle_x.to_numpy()[0, 1] >= 0
+    assert abs(v[1]) < 1e-12 and state.positions()[0, 1] >= 0
 
 
 @pytest.mark.parametrize("mode", MODES)
@@ -106,7 +106,7 @@ def test_frictionless_plane_keeps_tangential_velocity_and_scales_normal_by_e(mod
         (0, 0.001, 0), (1.5, -2.0, 0.5), gravity=False, colliders=[("plane", ((0, 1, 0), 0.0))], e=0.25
     )
     ta.IntegratorSymplecticEuler(collision_mode=mode).step(model, state, 0.01)
-    np.testing.assert_allclose(state.particle_v.to_numpy()[0], [1.5, 0.5, 0.5], atol=1e-12)
+    np.testing.assert_allclose(state.velocities()[0], [1.5, 0.5, 0.5], atol=1e-12)
 
 
 @pytest.mark.parametrize("mode, degrees", [("backward", 15.0), ("backward", 2.0), ("projection", 15.0)])
@@ -134,7 +134,7 @@ def test_particle_driven_into_a_sharp_crease_slides_along_it_without_gaining_ene
     f, x0, dt = np.array([5.0, 0.0, 2.0]), np.array([0.5, 0.01, 0.0]), 1e-3
     for _ in range(1000):
         integ.step(model, state, dt)
-        x, v = state.particle_x.to_numpy()[0], state.particle_v.to_numpy()[0]
+        x, v = state.positions()[0], state.velocities()[0]
         assert 0.5 * v @ v <= f @ (x - x0) + 1e-9
     if mode == "projection":
         return

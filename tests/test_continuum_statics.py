@@ -165,7 +165,7 @@ def test_cantilever_tip_deflection_matches_euler_bernoulli():
     state = model.state()
     result = ta.solve_static(model, state, tol=1e-6)
     assert result["converged"], result
-    x = state.particle_x.to_numpy()
+    x = state.positions()
     err = []
     for (along, _), tip in zip(meshes, tips, strict=True):
         w = -x[tip, 1]
@@ -215,7 +215,7 @@ def hang(material, meshes, *, grids=(), clip=0.125, start=None, samples=SAMPLES)
         x0 = np.concatenate([start(v) + (s, 0.0, 0.0) for (v, _), (_, s) in zip(items, where, strict=True)])
         state.particle_x.from_numpy(x0)
     result = ta.solve_static(model, state, tol=1e-6, max_iterations=300)
-    u = state.particle_x.to_numpy() - vertices
+    u = state.positions() - vertices
     fields = [
         interpolate(v, t, u[s : s + len(v)], samples) for (v, t), (s, _) in zip(items, where, strict=True)
     ]

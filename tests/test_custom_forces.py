@@ -117,7 +117,7 @@ def test_magnet_orbit_closes(method):
     integ = ta.make_integrator(method)
     for _ in range(400):
         integ.step(model, state, period / 400)
-    x, v = state.particle_x.to_numpy()[0], state.particle_v.to_numpy()[0]
+    x, v = state.positions()[0], state.velocities()[0]
     radius = float(np.linalg.norm(x))
     if method == "implicit_euler":
         e0 = 0.25 * speed**2 - 0.5 / s
@@ -166,6 +166,6 @@ def test_element_term_under_implicit_euler_is_exact_backward_euler():
         integ.step(model, state, h)
         du = (du - h * w2 * u) / (1.0 + h * h * w2)
         u = u + h * du
-    x = state.particle_x.to_numpy()
+    x = state.positions()
     assert x[0, 0] - x[1, 0] == pytest.approx(u, rel=1e-8)
     assert x[0, 0] + x[1, 0] == pytest.approx(1.0, abs=1e-12)  # momentum: the centre stays

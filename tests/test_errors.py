@@ -74,7 +74,7 @@ def test_diverging_explicit_euler_stops_at_the_first_bad_step_naming_particle_an
     e = err.value
     assert e.step == state.step_count and e.step < 10
     assert e.particle == 0 and e.quantity == "speed"
-    v = state.particle_v.to_numpy()
+    v = state.velocities()
     assert e.value == pytest.approx(np.linalg.norm(v[0]), rel=1e-6) and np.all(np.isfinite(v))
 
 

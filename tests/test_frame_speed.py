@@ -75,8 +75,8 @@ def test_fused_frames_equal_step_by_step(mode, method):
     assert got.step_count == ref.step_count == 48 and got.time == ref.time
     assert got_stepper.integrator.evaluations == ref_stepper.integrator.evaluations
     # Not a trivial comparison: the sheet moved, and not as one rigid fall (the pins and springs acted).
-    moved = np.abs(ref.particle_x.to_numpy() - _sheet().state().particle_x.to_numpy()).max()
-    assert moved > 1e-6 and np.ptp(ref.particle_v.to_numpy()[:, 1]) > 1e-4
+    moved = np.abs(ref.positions() - _sheet().state().positions()).max()
+    assert moved > 1e-6 and np.ptp(ref.velocities()[:, 1]) > 1e-4
 
 
 def test_frame_mode_is_chosen_by_size_and_needs():
@@ -190,7 +190,7 @@ for name, h, count in (("implicit_euler", 1 / 240, 3), ("symplectic_euler", 1e-5
     integ = ta.make_integrator(name)
     integ.step(model, s, h * count, count)
     mode = integ.stepper_for(model).frame_mode()["mode"]
-    print(name, mode, hashlib.sha256(s.particle_x.to_numpy().tobytes()).hexdigest())
+    print(name, mode, hashlib.sha256(s.positions().tobytes()).hexdigest())
 """
 
 
@@ -229,7 +229,7 @@ def test_auto_choice_with_an_error_tolerance_meets_it_on_the_closed_form():
         state = model.state()
         integ = make_chosen(model, choice)
         integ.step(model, state, frame_dt, choice.substeps)
-        error = abs(state.particle_x.to_numpy()[1, 0] - exact)
+        error = abs(state.positions()[1, 0] - exact)
         assert error <= 2.0 * tol  # Richardson's estimate is asymptotically exact: a factor 2 of slack
         if tol == 0.2:
             assert (choice.name, choice.substeps) == (loose.name, loose.substeps)

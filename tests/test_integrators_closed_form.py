@@ -19,7 +19,7 @@ def free_fall(name, dt, k):
     model = b.finalize()
     state = model.state()
     run(model, state, ta.make_integrator(name), dt, k)
-    return state.particle_x.to_numpy()[0]
+    return state.positions()[0]
 
 
 @pytest.mark.parametrize("name", sorted(ta.INTEGRATORS))

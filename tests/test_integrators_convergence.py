@@ -36,7 +36,7 @@ def pendulum_error(integrator, n_steps: int, reference) -> float:
     state = model.state()
     for _ in range(n_steps):
         integrator.step(model, state, T / n_steps)
-    return float(np.linalg.norm(state.particle_x.to_numpy()[0] - reference))
+    return float(np.linalg.norm(state.positions()[0] - reference))
 
 
 @pytest.mark.parametrize(
@@ -80,7 +80,7 @@ def frames_error(integrator, dt, frames, sub=1, **spring):
         for _ in range(sub):
             integrator.step(model, state, dt / sub)
         exact = damped_closed_form(f * dt, amplitude=0.5, **spring)
-        worst = max(worst, abs(state.particle_x.to_numpy()[0, 0] - exact))
+        worst = max(worst, abs(state.positions()[0, 0] - exact))
     return worst
 
 

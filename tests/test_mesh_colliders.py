@@ -95,9 +95,9 @@ def test_fast_particles_and_spheres_never_end_inside_a_closed_mesh_in_backward_m
         integ = ta.IntegratorSymplecticEuler(collision_mode=mode)
         for k in range(20):
             integ.step(model, state, dt)
-            x = state.particle_x.to_numpy()
+            x = state.positions()
             if k == 0:
-                ends[mode] = x, state.particle_v.to_numpy()
+                ends[mode] = x, state.velocities()
             if mode == "backward":
                 assert winding_number_np(v, f, x).max() < 0.5, f"a particle ended inside at step {k}"
                 dist, _, _ = query.closest_points(x)
@@ -154,8 +154,8 @@ def test_mesh_box_and_quad_give_the_contacts_of_the_analytic_box_and_plane(mode)
         xs, vs = [], []
         for _ in range(60):
             integ.step(model, state, 1.0 / 120.0)
-            xs.append(state.particle_x.to_numpy())
-            vs.append(state.particle_v.to_numpy())
+            xs.append(state.positions())
+            vs.append(state.velocities())
         runs[kind] = np.array(xs), np.array(vs)
     xa, xm = runs["analytic"][0], runs["mesh"][0][:, :48]
     assert np.all(np.abs(xa[:, :24, [0, 2]]) < 0.45) and np.all(np.abs(xa[:, 24:, [0, 2]] - 2.0) < 0.45)
@@ -203,7 +203,7 @@ def test_cloth_on_a_moving_and_on_a_deforming_mesh_never_has_a_vertex_inside_and
     queries = TriangleMesh(*left), TriangleMesh(*right)
     for k in range(1, 121):
         integ.step(model, state, dt)
-        x = state.particle_x.to_numpy()
+        x = state.positions()
         t = k * dt
         v_left = motion.apply(left[0], t)
         v_right = frames[0] + np.clip((t - 0.2) / 1.0, 0.0, 1.0) * (frames[1] - frames[0])
@@ -212,7 +212,7 @@ def test_cloth_on_a_moving_and_on_a_deforming_mesh_never_has_a_vertex_inside_and
             query.set_vertices(verts)
             dist, _, _ = query.closest_points(x)
             assert dist.min() >= reach, f"a vertex within the thickness at step {k}"
-    v = state.particle_v.to_numpy()
+    v = state.velocities()
     np.testing.assert_allclose(x[:, 1], 0.2 + thickness + radius, atol=1e-6)  # both tops end at 0.2 m
     assert np.abs(v).max() < 1e-3
 
@@ -293,7 +293,7 @@ def test_moving_mesh_demo_carries_the_cloth_and_exports_the_ball(tmp_path):
 
     for frame in range(160):
         scene.advance_frame()
-        x = scene.state.particle_x.to_numpy()
+        x = scene.state.positions()
         if frame % 4 == 0:  # every 4th frame: the checks cost more than the steps
             ball = scene.ball_now()[0]
             assert winding_number_np(ball, f, x).max() < 0.5

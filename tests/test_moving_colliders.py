@@ -122,12 +122,12 @@ def test_moving_ball_knocks_resting_particles_off_with_closed_form_velocity(mode
     for k in range(steps):
         integ.step(model, state, dt)
         centre = np.array([c0 + u * (k + 1) * dt, 0.0, 0.0])
-        gap = np.linalg.norm(state.particle_x.to_numpy() - centre, axis=1) - big_r
+        gap = np.linalg.norm(state.positions() - centre, axis=1) - big_r
         assert gap.min() >= -1e-12  # never inside the ball at the end of a step
     root = np.sqrt(big_r**2 - offsets**2)
     n = np.stack([root, offsets, np.zeros(4)], axis=1) / big_r
     v_expected = (1.0 + e) * u * n[:, :1] * n
-    v = state.particle_v.to_numpy()
+    v = state.velocities()
     if mode == "backward":
         # The swept test finds the impact time exactly (the ball translates): velocities and positions
         # to round-off. Impact at t_hit = (-root - c0) / U, then straight flight.
@@ -136,7 +136,7 @@ def test_moving_ball_knocks_resting_particles_off_with_closed_form_velocity(mode
         x_expected = (
             np.stack([np.zeros(4), offsets, np.zeros(4)], axis=1) + v_expected * (steps * dt - t_hit)[:, None]
         )
-        np.testing.assert_allclose(state.particle_x.to_numpy(), x_expected, atol=1e-9)
+        np.testing.assert_allclose(state.positions(), x_expected, atol=1e-9)
     else:
         # Projection takes the normal at the end point, up to U dt inside the ball: the normal is off by
         # an angle of order U dt / R for the points hit off-centre.
@@ -158,14 +158,14 @@ def test_rising_floor_carries_particles_up_and_they_end_at_rest_on_it(mode):
     for k in range(1, 1001):
         integ.step(model, state, dt)
         floor = rise * min(k * dt, 1.0)
-        y = state.particle_x.to_numpy()[:, 1]
+        y = state.positions()[:, 1]
         assert y.min() >= floor - 1e-12  # never below the floor at the end of a step
         if k == 400:  # t = 0.8 s: all have landed and ride at the floor's speed
             np.testing.assert_allclose(y, floor, atol=1e-12)
-            np.testing.assert_allclose(state.particle_v.to_numpy()[:, 1], rise, atol=1e-9)
+            np.testing.assert_allclose(state.velocities()[:, 1], rise, atol=1e-9)
     # After the floor stops each point flies up v^2 / 2g = 1.3 cm and lands again, then rests.
-    np.testing.assert_allclose(state.particle_x.to_numpy()[:, 1], rise, atol=1e-12)
-    np.testing.assert_allclose(state.particle_v.to_numpy(), 0.0, atol=1e-12)
+    np.testing.assert_allclose(state.positions()[:, 1], rise, atol=1e-12)
+    np.testing.assert_allclose(state.velocities(), 0.0, atol=1e-12)
 
 
 @pytest.mark.parametrize("mode", MODES)
@@ -193,7 +193,7 @@ def test_rotating_paddle_hits_points_with_the_surface_normal_speed(mode, e):
     first = [None] * 3
     for k in range(1, 600):
         integ.step(model, state, dt)
-        x, v = state.particle_x.to_numpy(), state.particle_v.to_numpy()
+        x, v = state.positions(), state.velocities()
         r, tr = motion.pose(k * dt)
         local = (x - tr) @ r  # R^T (x - T), row-wise
         lx, ly, lz = local.T
@@ -230,7 +230,7 @@ def test_backward_mode_catches_a_fast_thin_slab_that_projection_misses(e):
         model = b.finalize()
         state = model.state()
         ta.IntegratorSymplecticEuler(collision_mode=mode).step(model, state, dt)
-        ends[mode] = state.particle_x.to_numpy()[0], state.particle_v.to_numpy()[0]
+        ends[mode] = state.positions()[0], state.velocities()[0]
     x, v = ends["backward"]
     v_out = -(1.0 + e) * speed
     np.testing.assert_allclose(v, [0.0, v_out, 0.0], atol=1e-9)
@@ -285,10 +285,10 @@ def test_cloth_follows_corners_moving_on_a_circle():
         integ = ta.IntegratorImplicitEuler(tol=1e-6)
         m = model.particle_masses()
         track = []
-        x_prev = state.particle_x.to_numpy()
+        x_prev = state.positions()
         for k in range(1, steps + 1):
             integ.step(model, state, dt)
-            x, v = state.particle_x.to_numpy(), state.particle_v.to_numpy()
+            x, v = state.positions(), state.velocities()
             if moving:
                 target = x_pins + np.array([np.interp(k * dt, times, offset[:, a]) for a in range(3)])
                 np.testing.assert_allclose(x[cloth.pinned], target, atol=1e-12)
@@ -324,7 +324,7 @@ def test_attachment_carried_by_a_rigid_motion_ends_each_step_on_it(mode):
     x_prev = rest
     for k in range(1, 25):  # past the last keyframe: held
         integ.step(model, state, dt)
-        x, v = state.particle_x.to_numpy(), state.particle_v.to_numpy()
+        x, v = state.positions(), state.velocities()
         target = motion.apply(rest, k * dt)
         np.testing.assert_allclose(x[list(attached)], target, atol=1e-12)
         np.testing.assert_allclose(v[list(attached)], (target - x_prev) / dt, atol=1e-9)
@@ -385,7 +385,7 @@ def test_backward_mode_lets_a_particle_slide_along_a_surface():
         integ = ta.IntegratorSymplecticEuler(collision_mode=mode)
         for _ in range(steps):
             integ.step(model, state, h)
-        ends[mode] = state.particle_x.to_numpy()[0]
+        ends[mode] = state.positions()[0]
     n = np.arange(1, steps + 1)
     expected = h * np.sum(v0 - mu * 9.81 * n * h)
     for mode in MODES:

@@ -127,7 +127,7 @@ def test_toy_term_is_guarded_by_the_watchdog():
     wd = integ.stepper_for(model).watchdog
     assert wd.derived["v_ref"] == pytest.approx(10.0, rel=1e-12)
     assert wd.describe()["energy_checked"] is True
-    x, v = state.particle_x.to_numpy(), state.particle_v.to_numpy()
+    x, v = state.positions(), state.velocities()
     assert wd._energy(state) == pytest.approx(0.5 * (v**2).sum() + 50.0 * (x**2).sum(), rel=1e-12)
 
 
@@ -169,7 +169,7 @@ def test_toy_collider_stops_particles_and_bounds_the_watchdog():
     integ = ta.make_integrator("symplectic_euler")
     for _ in range(100):
         integ.step(model, state, 1e-2)
-    assert float(state.particle_x.to_numpy()[0] @ n) >= -1e-9
+    assert float(state.positions()[0] @ n) >= -1e-9
 
     b = ta.Builder()
     b.add_particles([[0.0, 0.5, 0.0]], mass=1.0)
@@ -230,7 +230,7 @@ def test_toy_integrator_is_bounded_by_its_declared_region():
     period = 2.0 * math.pi / w
     for _ in range(round(period / 0.01)):
         toy.step(model, state, 0.01)
-    x, v = state.particle_x.to_numpy()[0], state.particle_v.to_numpy()[0]
+    x, v = state.positions()[0], state.velocities()[0]
     energy = 0.5 * v @ v + 0.5 * w * w * x @ x  # starts at k / 2 = 50 J
     assert abs(energy - 50.0) <= 50.0 * 0.1  # bounded: symplectic, h w = 0.1
 

@@ -22,7 +22,7 @@ for name in ("symplectic_euler", "implicit_euler", "rk4"):
     integ = ta.make_integrator(name)
     for _ in range(10):
         integ.step(model, s, 1e-4)
-    print(name, hashlib.sha256(s.particle_x.to_numpy().tobytes()).hexdigest())
+    print(name, hashlib.sha256(s.positions().tobytes()).hexdigest())
 print("fast", runtime.FAST_DATA_ORIENTED)
 """
 

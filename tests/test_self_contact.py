@@ -30,7 +30,7 @@ def check_frames(model, integrator, steps, every=1, dt=DT):
     for k in range(steps):
         integrator.step(model, state, dt)
         if (k + 1) % every == 0:
-            x = state.particle_x.to_numpy().astype(np.float64)
+            x = state.positions().astype(np.float64)
             pairs = intersecting_triangle_pairs(x, tri)
             assert len(pairs) == 0, f"step {k + 1}: {len(pairs)} crossing triangle pairs"
             if thickness:
@@ -68,7 +68,7 @@ def test_stacked_sheets_on_a_ball_never_cross(kind):
     assert worst >= (1.0 - THICKNESS_TOLERANCE) * thickness, worst
     # They met over the ball, and the top sheet is still on top: its centre a thickness above the
     # bottom sheet's (a sheet that tunnelled through the other would leave no crossing pair behind).
-    x = state.particle_x.to_numpy()
+    x = state.positions()
     n = len(x) // 2
     centre = n // 2  # the middle vertex of a 17 x 17 grid
     top, bottom = x[n + centre, 1], x[centre, 1]
@@ -82,7 +82,7 @@ def test_without_self_contact_the_same_sheets_cross():
     state = model.state()
     for _ in range(240):
         integrator.step(model, state, DT)
-    x = state.particle_x.to_numpy().astype(np.float64)
+    x = state.positions().astype(np.float64)
     assert len(intersecting_triangle_pairs(x, model.triangles)) > 0
 
 
@@ -114,7 +114,7 @@ def test_fast_sheet_thrown_at_a_pinned_sheet(guard):
     crossed = False
     for _ in range(30):
         integrator.step(model, state, DT)
-        x = state.particle_x.to_numpy().astype(np.float64)
+        x = state.positions().astype(np.float64)
         crossed |= len(intersecting_triangle_pairs(x, model.triangles)) > 0 or x[81:, 1].min() < 0.0
         if guard:
             assert not crossed
@@ -133,7 +133,7 @@ def test_pair_list_overflow_raises_and_keeps_the_guarantee():
     state = model.state()
     with pytest.raises(ta.DivergenceError, match="pairs_per_vertex"):
         implicit().step(model, state, DT)
-    x = state.particle_x.to_numpy().astype(np.float64)
+    x = state.positions().astype(np.float64)
     assert len(intersecting_triangle_pairs(x, model.triangles)) == 0
 
 
@@ -157,7 +157,7 @@ def test_folded_sheet_never_crosses_itself():
     state, worst = check_frames(model, implicit(), 360, every=1)
     assert worst >= (1.0 - THICKNESS_TOLERANCE) * 0.004, worst
     # It folded: the sheet (0.6 m tall) now lies within a few centimetres of the floor.
-    assert state.particle_x.to_numpy()[:, 1].max() < 0.15
+    assert state.positions()[:, 1].max() < 0.15
 
 
 def test_momentum_exchanged_between_sheets_is_equal_and_opposite():
@@ -179,13 +179,13 @@ def test_momentum_exchanged_between_sheets_is_equal_and_opposite():
     integrator = ta.make_integrator("symplectic_euler")  # stable: 2.5e-4 s < 0.4 sqrt(m / k) = 3.5e-4 s
     m = model.particle_masses()
     n = len(m) // 2
-    v = state.particle_v.to_numpy()
+    v = state.velocities()
     p0 = [(m[:n, None] * v[:n]).sum(0), (m[n:, None] * v[n:]).sum(0)]
     for _ in range(400):
         integrator.step(model, state, 1.0 / 4000.0)
     stepper = integrator.stepper_for(model)
     assert stepper.self_contact.stats["clamped"] == 0  # bounds (not momentum-conserving) never acted
-    v = state.particle_v.to_numpy()
+    v = state.velocities()
     p1 = [(m[:n, None] * v[:n]).sum(0), (m[n:, None] * v[n:]).sum(0)]
     d0, d1 = p1[0] - p0[0], p1[1] - p0[1]
     assert np.linalg.norm(d0) > 0.5 * np.linalg.norm(p0[0])  # the sheets did collide

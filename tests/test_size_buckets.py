@@ -17,21 +17,25 @@ import taichi as ti
 import taichi_anim as ta
 from taichi_anim import capacity
 from taichi_anim.errors import ParameterError
-from taichi_anim.scenes import cloth, fountain
+from taichi_anim.scenes import cloth, fountain, spheres
 
 from .helpers import ulp_tolerance
 
 ROOT = Path(__file__).resolve().parents[1]
 
 # Two sizes in one bucket, and one in the next, per scene kind: an emitter's pool (particles, emitters,
-# trails, a box collider, symplectic Euler) and a mass-spring cloth stepped by implicit Euler with PCG
-# (springs, drag, pins, the linear solver). Cloth 14 and 15: 196 and 225 vertices (bucket 256), 1038 and
-# 1202 springs (bucket 2048); 17: 289 vertices.
+# trails, a box collider, symplectic Euler), a mass-spring cloth stepped by implicit Euler with PCG
+# (springs, drag, pins, the linear solver) and hard spheres (contacts, the neighbour grid). Cloth 14 and
+# 15: 196 and 225 vertices (bucket 256), 1038 and 1202 springs (bucket 2048); 17: 289 vertices.
 SIZES = {
     "fountain": ({"particles": 700}, {"particles": 1000}, {"particles": 1500}),
     "cloth": ({"resolution": 14}, {"resolution": 15}, {"resolution": 17}),
+    # 3000 and 3500 spheres: the demo's column is then 25 layers high either way, so its box (a collider's
+    # shape is a compile-time constant) is the same; 5000 fill the next bucket.
+    "spheres": ({"particles": 3000}, {"particles": 3500}, {"particles": 5000}),
 }
-BUILD = {"fountain": {}, "cloth": {"integrator": "implicit_euler"}}
+BUILD = {"fountain": {}, "cloth": {"integrator": "implicit_euler"}, "spheres": {"steps_per_frame": 2}}
+SCENES = {"fountain": fountain, "cloth": cloth, "spheres": spheres}
 
 _RUNNER = """
 import gc, json, sys
@@ -77,7 +81,7 @@ def test_another_size_in_the_bucket_compiles_no_kernel(tmp_path):
 
 def _final(name: str, buckets: bool, frames: int):
     ta.init("cpu", precision="f64", size_buckets=buckets)
-    scene = {"fountain": fountain, "cloth": cloth}[name].build(**BUILD[name], **SIZES[name][1])
+    scene = SCENES[name].build(**BUILD[name], **SIZES[name][1])
     stepper = ta.Stepper(scene.model, scene.integrator)
     for _ in range(frames):
         stepper.step(scene.state, scene.dt, scene.substeps)
@@ -90,7 +94,7 @@ def buckets_reset():
     capacity.set_enabled(None)
 
 
-@pytest.mark.parametrize("name, frames", [("fountain", 30), ("cloth", 10)])
+@pytest.mark.parametrize("name, frames", [("fountain", 30), ("cloth", 10), ("spheres", 10)])
 def test_buckets_run_the_same_physics(buckets_reset, name, frames):
     """The live count read at run time instead of a constant: the same arithmetic, compiled apart, so equal
     within round-off (the cloth's PCG also stops after the same iterations)."""

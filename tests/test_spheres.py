@@ -25,7 +25,7 @@ def run(model, state, dt, steps, integrator="symplectic_euler", **options):
     for _ in range(steps):
         integ.step(model, state, dt)
     LAST["contacts"] = integ.stepper_for(model).contacts
-    return state.particle_x.to_numpy(), state.particle_v.to_numpy()
+    return state.positions(), state.velocities()
 
 
 LAST: dict = {}  # the contact solver of the last run (its neighbour structure and contact lists)
@@ -170,9 +170,9 @@ def test_pile_of_10000_spheres_comes_to_rest():
     for step in range(2700):  # 0.75 s
         integ.step(model, state, dt)  # raises DivergenceError on any NaN
         if step % 300 == 299:
-            vs = state.particle_v.to_numpy()
+            vs = state.velocities()
             kinetic.append(0.5 * m * (vs**2).sum())
-    xs = state.particle_x.to_numpy()
+    xs = state.positions()
     released = m * 9.81 * (x[:, 1] - xs[:, 1]).sum()
     assert released > 0.5
     assert kinetic[-1] < 0.01 * released and kinetic[-1] < kinetic[2]
@@ -313,8 +313,8 @@ def test_dense_random_pile_conserves_momentum_for_any_number_of_sweeps(iteration
     most = 0
     for _ in range(20):
         integ.step(model, state, 1e-3)
-        assert np.abs(m @ state.particle_v.to_numpy() - p0).max() < 1e-13 * scale
+        assert np.abs(m @ state.velocities() - p0).max() < 1e-13 * scale
         most = max(most, integ.stepper_for(model).contacts.slot_contact_count.to_numpy().max())
     assert most > 16  # the cells fallback ran too
-    moved = np.abs(state.particle_x.to_numpy() - x - 0.02 * v).max()
+    moved = np.abs(state.positions() - x - 0.02 * v).max()
     assert moved > 0.01  # the contacts really moved the spheres

@@ -107,7 +107,7 @@ def test_frequency_against_dense_eigenvalues(case):
     # with blocks=True (stretched, -m slow: those kernels compile for long).
     material = fabric() if case.startswith("membrane") else rayleigh_springs(5e-5)
     model = small_cloth(material, drag=0.002 if "drag" in case else 0.0, anchor="anchor" in case)
-    x = model.state().particle_x.to_numpy().astype(np.float64)
+    x = model.state().positions()
     if case.endswith("stretched"):
         x = x * 1.1  # every spring and triangle stretched by 10%: transverse and stress stiffness appear
     ref, zeta_ref = dense_top(model, x)
@@ -155,14 +155,14 @@ def amplitude_growth(name, model, dt, steps):
     eccentric orbit, so boundedness compares the amplitude with itself; growth compares with the start
     (a growing run saturates where the spring passes through its anchor)."""
     state = model.state()
-    x = state.particle_x.to_numpy()
+    x = state.positions()
     x[1, 0] += 1e-3
     state.particle_x.from_numpy(x)
     integ = ta.make_integrator(name, policy=IGNORE, check_every=10**9)
     d = np.zeros(steps)
     for s in range(steps):
         integ.step(model, state, dt)
-        d[s] = abs(state.particle_x.to_numpy()[1, 0] - 0.1)
+        d[s] = abs(state.positions()[1, 0] - 0.1)
         if not math.isfinite(d[s]) or d[s] > 1.0:
             return math.inf, math.inf
     return d[-steps // 4 :].max() / d[: steps // 4].max(), d.max() / 1e-3
@@ -241,7 +241,7 @@ def test_pointwise_kernel_matches_numpy():
     # The kernel fallback for pointwise terms (model.force_jacobian) gives the NumPy blocks of drag and
     # anchor springs to rounding.
     model = small_cloth(rayleigh_springs(5e-5), drag=0.002, anchor=True)
-    x = model.state().particle_x.to_numpy().astype(np.float64) * 1.05
+    x = model.state().positions() * 1.05
     v = np.zeros_like(x)
     k_np, c_np = stability._point_blocks(model, x, v, 0.0)
     k_ti, c_ti = stability._PointJacobians(model).blocks(x, v, 0.0)

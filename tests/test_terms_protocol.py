@@ -79,13 +79,13 @@ def test_two_integrators_on_one_model_share_no_scratch():
         s = fresh(v0, integ)
         for _ in range(6):
             integ.step(model, s, 1 / 120)
-        alone.append(s.particle_x.to_numpy())
+        alone.append(s.positions())
     states = [fresh(v0, integ) for v0, integ in zip(starts, integs, strict=True)]
     for _ in range(6):
         for s, integ in zip(states, integs, strict=True):
             integ.step(model, s, 1 / 120)
     for s, x in zip(states, alone, strict=True):
-        assert np.array_equal(s.particle_x.to_numpy(), x)
+        assert np.array_equal(s.positions(), x)
     assert not np.array_equal(alone[0], alone[1])
 
 
@@ -95,7 +95,7 @@ def test_mixed_terms_converge_under_every_integrator():
     an RK4 reference at a 16x smaller step, errors ordered by the methods' orders; implicit Euler with
     Jacobi, CG and PCG at the same step agree with each other to their tolerance."""
     model = sheet(DAMPED, aero=True, springs_too=True)
-    x0 = model.state().particle_x.to_numpy()
+    x0 = model.state().positions()
     T, h = 0.02, 1e-4
 
     def run(name, dt, **opts):
@@ -103,7 +103,7 @@ def test_mixed_terms_converge_under_every_integrator():
         integ = ta.make_integrator(name, **opts)
         for _ in range(round(T / dt)):
             integ.step(model, s, dt)
-        return s.particle_x.to_numpy()
+        return s.positions()
 
     ref = run("rk4", h / 4)  # RK4's error at h/4 is ~1/256 of its error at h
     moved = np.abs(ref - x0).max()
@@ -133,7 +133,7 @@ def test_implicit_system_is_the_linearisation_of_the_forces(with_springs):
         ta.FabricMaterial(youngs_modulus=1e3, bending_stiffness=1e-4, damping=2e-3), springs_too=with_springs
     )
     rng = np.random.default_rng(1)
-    x0 = model.state().particle_x.to_numpy().astype(np.float64)
+    x0 = model.state().positions()
     x = x0 * np.array([1.02, 1.01, 1.0])  # stretched 2% in x and 1% in y, still flat (z = 0)
     # At rest: the damping forces' x-derivative (left out of the system, as Baraff & Witkin do) is 0 there.
     v = np.zeros_like(x)
@@ -164,7 +164,7 @@ def test_undamped_membrane_keeps_its_energy_under_symplectic_euler():
     masses = model.particle_masses()
 
     def total():
-        x, v = s.particle_x.to_numpy().astype(np.float64), s.particle_v.to_numpy().astype(np.float64)
+        x, v = s.positions().astype(np.float64), s.velocities().astype(np.float64)
         e = model.energy(x, v)
         return e["kinetic"] + e["membrane_stvk"] + e["bending_dihedral"] - float(masses @ (x @ np.array(G)))
 
@@ -174,7 +174,7 @@ def test_undamped_membrane_keeps_its_energy_under_symplectic_euler():
         for _ in range(50):
             integ.step(model, s, 4e-4)
         drift.append(total() - e0)
-    fallen = float(masses @ (model.state().particle_x.to_numpy() - s.particle_x.to_numpy())[:, 1])
+    fallen = float(masses @ (model.state().positions() - s.positions())[:, 1])
     assert fallen > 0.0  # it swung down: energy moved from gravity into motion and strain
     scale = float(masses.sum() * 9.81 * 0.3)  # the sheet's potential energy range [J]
     assert np.max(np.abs(drift)) < 0.01 * scale
@@ -194,8 +194,8 @@ def test_implicit_euler_never_diverges_at_frame_steps_on_the_stiffest_demo_fabri
         rest = np.linalg.norm(x0[e[:, 0]] - x0[e[:, 1]], axis=1)
         for _ in range(180):
             integ.step(model, state, 1 / 60)
-        x = state.particle_x.to_numpy()
-        v = state.particle_v.to_numpy()
+        x = state.positions()
+        v = state.velocities()
         assert np.all(np.isfinite(x)) and np.all(np.isfinite(v))
         assert np.all(np.linalg.norm(x[e[:, 0]] - x[e[:, 1]], axis=1) < 1.5 * rest)
         assert np.abs(v).max() < 30.0

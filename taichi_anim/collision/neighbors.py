@@ -21,6 +21,7 @@ from enum import Enum
 import numpy as np
 import taichi as ti
 
+from .. import capacity as capacity_module
 from .. import validate
 from ..errors import ParameterError
 from ..runtime import data_oriented, serial_loops
@@ -49,13 +50,15 @@ class _NeighborSearch:
 
     method = NeighborMethod.BRUTE
 
-    def __init__(self, capacity: int, radius: float):
+    def __init__(self, capacity: int, radius: float, make=None):
         self.capacity = validate.count("capacity", capacity, 1)
         self.radius = validate.positive("radius", radius)
-        self.sorted_id = ti.field(ti.i32, self.capacity)
-        self.sorted_x = ti.Vector.field(3, float, self.capacity)
-        self.size = ti.field(ti.i32, ())
-        self._no_death = ti.field(float, 1)
+        # make(owner, role, dtype, shape, dims): a model's pool under capacity buckets, else new fields.
+        self._make = make or capacity_module.plain
+        self.sorted_id = self._make(self, "neighbor_sorted_id", ti.i32, self.capacity)
+        self.sorted_x = self._make(self, "neighbor_sorted_x", float, self.capacity, (3,))
+        self.size = self._make(self, "neighbor_size", ti.i32, ())
+        self._no_death = self._make(self, "neighbor_no_death", float, 1)
 
     def describe(self) -> str:
         """One line for summaries: the method and its capacity."""
@@ -133,8 +136,8 @@ class NeighborGrid(_NeighborSearch):
     buckets (Teschner et al. 2003), for unbounded scenes; a query then checks each candidate's own cell,
     so two neighbour cells sharing a bucket never visit a particle twice."""
 
-    def __init__(self, capacity: int, radius: float, domain=None):
-        super().__init__(capacity, radius)
+    def __init__(self, capacity: int, radius: float, domain=None, make=None):
+        super().__init__(capacity, radius, make)
         self.hashed = domain is None
         self.method = NeighborMethod.HASH_GRID if self.hashed else NeighborMethod.GRID
         h = self.radius
@@ -158,15 +161,18 @@ class NeighborGrid(_NeighborSearch):
         self.cell_size = float(h)
         self._inv_h = 1.0 / self.cell_size
         c = self.cell_count
-        self.cell_particles = ti.field(ti.i32, c)
-        self.cell_start = ti.field(ti.i32, c + 1)
-        self.particle_cell = ti.field(ti.i32, self.capacity)
-        self.particle_rank = ti.field(ti.i32, self.capacity)
+        make = self._make
+        self.cell_particles = make(self, "neighbor_cell_particles", ti.i32, c)
+        self.cell_start = make(self, "neighbor_cell_start", ti.i32, c + 1)
+        self.particle_cell = make(self, "neighbor_particle_cell", ti.i32, self.capacity)
+        self.particle_rank = make(self, "neighbor_particle_rank", ti.i32, self.capacity)
         # Hashed grid: each slot's cell, so a query skips other cells sharing a bucket with one compare.
-        self.slot_cell = ti.Vector.field(3, ti.i32, self.capacity) if self.hashed else None
+        self.slot_cell = (
+            make(self, "neighbor_slot_cell", ti.i32, self.capacity, (3,)) if self.hashed else None
+        )
         # Small structures are launch-bound on the CPU: their build loops run on one thread.
         self._serial = serial_loops(self.capacity)
-        self._scan = PrefixSum(c, self._serial)
+        self._scan = PrefixSum(c, self._serial, make)
 
     def describe(self) -> str:
         """One line for summaries: cells (or hash buckets) and the cell size [m]."""
@@ -268,8 +274,9 @@ class NeighborGrid(_NeighborSearch):
                         self._offer(i, k, p, r2, check, visit, ret)
 
 
-def make_neighbor_search(capacity: int, radius: float, *, domain=None, method: str = "auto"):
-    """A neighbour structure for up to `capacity` particles and queries up to `radius` [m].
+def make_neighbor_search(capacity: int, radius: float, *, domain=None, method: str = "auto", make=None):
+    """A neighbour structure for up to `capacity` particles and queries up to `radius` [m]; make: the
+    allocator of its fields (a model's pool under capacity buckets; default new fields).
 
     method: "brute", "grid" (needs domain=(lo, hi)), "hash_grid", or "auto": the bounded grid when a
     domain is given, else the hashed grid, or brute force below their measured crossover (CROSSOVER_N,
@@ -281,7 +288,7 @@ def make_neighbor_search(capacity: int, radius: float, *, domain=None, method: s
         if capacity < (CROSSOVER_N if domain is not None else CROSSOVER_N_HASHED):
             method = "brute"
     if method == "brute":
-        return NeighborBrute(capacity, radius)
+        return NeighborBrute(capacity, radius, make)
     if method == "grid" and domain is None:
         raise ParameterError("method='grid' needs domain=(lo, hi); use 'hash_grid' without one")
-    return NeighborGrid(capacity, radius, domain if method == "grid" else None)
+    return NeighborGrid(capacity, radius, domain if method == "grid" else None, make)

@@ -165,40 +165,46 @@ class ContactSpheres:
         self.continuous = bool(continuous)
         self.max_substeps = validate.count("max_substeps", max_substeps, 1)
         self._warned = False
-        n = model.particle_count
+        # Arrays of particle_capacity rows (the count, unless capacity buckets are on: then from the
+        # model's pool, and every choice below goes by the capacity, so that any size of a bucket compiles
+        # the same kernels; the loops run to the neighbour structure's live size).
+        n = model.particle_capacity
+        make = model.new_field
         # Small sphere counts are launch-bound on the CPU: a step is ~8 loops, each ~70 us more in
         # parallel than serial here (benchmarks/results/realtime.md found 463 us per step at 62 spheres).
         self._serial = serial_loops(n)
         self.max_radius = model.max_radius
         self.min_radius = model.min_sphere_radius  # points (radius 0) may share the scene
         # A pair touches when |x_i - x_j| < r_i + r_j <= 2 r_max: cells of that size hold every contact.
-        self.neighbors = make_neighbor_search(n, 2.0 * self.max_radius, domain=domain, method=neighbor_search)
+        self.neighbors = make_neighbor_search(
+            n, 2.0 * self.max_radius, domain=domain, method=neighbor_search, make=make
+        )
         # Slot-order copies: the prediction x* is the neighbour structure's own sorted copy; v*, and the
         # two sides of the position ping-pong.
         self.x_pred = self.neighbors.sorted_x
-        self.v_pred = ti.Vector.field(3, float, n)
+        self.v_pred = make(self, "spheres_v_pred", float, n, (3,))
         # The prediction's contacts, listed in visiting order: the first sweep and the velocity sweep,
         # whose contacts are exactly these, walk the list instead of the 27 cells (the same pairs in the
         # same order, so the same sums). A sphere with more falls back to the cells.
-        self.slot_contacts = ti.field(ti.i32, (n, CONTACTS_KEPT))
-        self.slot_contact_count = ti.field(ti.i32, n)
-        self.slot_approach_count = ti.field(ti.i32, n)  # of those, the pairs that were approaching
+        self.slot_contacts = make(self, "spheres_slot_contacts", ti.i32, (n, CONTACTS_KEPT))
+        self.slot_contact_count = make(self, "spheres_slot_contact_count", ti.i32, n)
+        self.slot_approach_count = make(self, "spheres_slot_approach_count", ti.i32, n)  # approaching pairs
         self.pred = _PositionSide(self, self.x_pred, self.slot_contact_count)
-        self.sides = [
-            _PositionSide(self, ti.Vector.field(3, float, n), ti.field(ti.i32, n)) for _ in range(2)
-        ]
+        xs = [make(self, f"spheres_x{s}", float, n, (3,)) for s in range(2)]
+        counts = [make(self, f"spheres_count{s}", ti.i32, n) for s in range(2)]
+        self.sides = [_PositionSide(self, x, c) for x, c in zip(xs, counts, strict=True)]
         # Sweep k reads src and the counts of the side sweep k - 1 read: the first two the prediction's,
         # then the two sides in turn.
         a, b = self.sides
         self.sweeps = [_Sweep(self, self.pred, self.pred), _Sweep(self, a, self.pred)]
         self.sweeps += [_Sweep(self, b, a), _Sweep(self, a, b)]
         self._per_slot = model.per_particle_radius or model.per_particle_mass
-        self.slot_r = ti.field(float, n) if self._per_slot else None
-        self.slot_w = ti.field(float, n) if self._per_slot else None
+        self.slot_r = make(self, "spheres_slot_r", float, n) if self._per_slot else None
+        self.slot_w = make(self, "spheres_slot_w", float, n) if self._per_slot else None
         self._position_acc, self._velocity_acc = accumulator_types()
-        self.max_speed = ti.field(float, ())
-        self.overlap = ti.field(float, ())
-        self.contact_count = ti.field(ti.i32, ())
+        self.max_speed = make(self, "spheres_max_speed", float, ())
+        self.overlap = make(self, "spheres_overlap", float, ())
+        self.contact_count = make(self, "spheres_contact_count", ti.i32, ())
 
     def settings(self) -> dict:
         return {
@@ -426,7 +432,7 @@ class ContactSpheres:
     def _max_speed(self, model: ti.template(), state: ti.template(), t: float):
         self.max_speed[None] = 0.0
         ti.loop_config(serialize=self._serial)
-        for i in range(model.particle_count):
+        for i in range(model.live_particles()):
             if model.alive(state, i, t):
                 ti.atomic_max(self.max_speed[None], state.particle_v[i].norm())
 

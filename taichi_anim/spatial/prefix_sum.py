@@ -19,11 +19,16 @@ class PrefixSum:
     """Scratch for scanning up to `capacity` integers; serial=True runs every pass on one thread (for
     small, launch-bound scans on the CPU)."""
 
-    def __init__(self, capacity: int, serial: bool = False):
+    def __init__(self, capacity: int, serial: bool = False, make=None):
+        """make(owner, role, dtype, shape, dims): the allocator (a model's pool under capacity buckets;
+        default: a new field)."""
         self.capacity = capacity
         self.serial = serial
         self.block_count = (capacity + BLOCK - 1) // BLOCK
-        self.block_total = ti.field(ti.i32, self.block_count + 1)
+        if make is None:
+            self.block_total = ti.field(ti.i32, self.block_count + 1)
+        else:
+            self.block_total = make(self, "prefix_block_total", ti.i32, self.block_count + 1)
 
     @ti.func
     def exclusive(self, counts: ti.template(), starts: ti.template(), n):

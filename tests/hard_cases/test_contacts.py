@@ -45,7 +45,7 @@ def cloth_drop(speed: float, *, size: float = 1.0):
 
 def kinetic_and_potential(model, state) -> tuple[float, float]:
     """(kinetic, potential) energy [J]: the springs' elastic energy (model.energy) and gravity's m g y."""
-    x, v = state.particle_x.to_numpy(), state.particle_v.to_numpy()
+    x, v = state.positions(), state.velocities()
     e = model.energy(x, v)
     elastic = sum(val for key, val in e.items() if key not in ("kinetic", "gravity"))
     return e["kinetic"], elastic + G * float(model.particle_masses() @ x[:, 1])
@@ -111,7 +111,7 @@ def test_newtons_cradle_conserves_momentum_for_any_number_of_sweeps(iterations):
     integ = ta.make_integrator("symplectic_euler")
     for _ in range(200):
         integ.step(model, state, 1e-3)
-        vs = state.particle_v.to_numpy()
+        vs = state.velocities()
         assert np.abs(vs.sum(0) - [1.0, 0.0, 0.0]).max() < 1e-12
         assert 0.5 * (vs**2).sum() <= 0.5 + 1e-12
     if iterations == 1:  # one sweep per step passes the impulse down the row exactly

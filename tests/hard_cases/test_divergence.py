@@ -57,7 +57,7 @@ def test_spring_explosion_stops_early_naming_step_particle_quantity_value():
     assert e.step == state.step_count <= 5
     assert e.particle == 1 and e.quantity == "speed" and e.value > speed
     assert f"step {e.step}" in str(e) and "particle 1" in str(e) and "speed" in str(e)
-    x = state.particle_x.to_numpy()
+    x = state.positions()
     assert np.all(np.isfinite(x)) and np.all((lo < x) & (x < hi))
 
 
@@ -78,7 +78,7 @@ def test_stiff_cloth_explosion_stops_early(method):
     assert 0 <= e.particle < model.particle_count and e.quantity in ("speed", "position")
     assert math.isfinite(e.value)
     lo, hi, _ = integ.stepper_for(model).watchdog.limits_at(state.time)
-    x = state.particle_x.to_numpy()
+    x = state.positions()
     assert np.all(np.isfinite(x)) and np.all((lo < x) & (x < hi))
     print(f"{method}: stopped at step {e.step}, particle {e.particle}, {e.quantity} = {e.value:.3g}")
 
@@ -86,13 +86,11 @@ def test_stiff_cloth_explosion_stops_early(method):
 def _bead_run(integ, model, state, steps: int = 3000):
     """Step the spring example until it raises; the state after every step that returned, and the
     error."""
-    good = [(state.particle_x.to_numpy(), state.particle_v.to_numpy(), state.step_count, state.time)]
+    good = [(state.positions(), state.velocities(), state.step_count, state.time)]
     with pytest.raises(ta.DivergenceError) as err:
         for _ in range(steps):
             integ.step(model, state, 1 / 60)
-            good.append(
-                (state.particle_x.to_numpy(), state.particle_v.to_numpy(), state.step_count, state.time)
-            )
+            good.append((state.positions(), state.velocities(), state.step_count, state.time))
     return good, err.value
 
 
@@ -112,9 +110,9 @@ def test_a_divergence_error_leaves_the_state_at_the_last_good_step(check_every):
     last = (e.step - 1) // check_every * check_every  # the last checked step before the bad one
     x, v, count, t = good[last]
     assert e.step >= 2 and state.step_count == count == last and state.time == t
-    assert np.array_equal(state.particle_x.to_numpy(), x) and np.array_equal(state.particle_v.to_numpy(), v)
+    assert np.array_equal(state.positions(), x) and np.array_equal(state.velocities(), v)
     assert f"left at the last good step checked, step {last}" in str(e)
-    assert np.abs(state.particle_v.to_numpy()).max() < 10.0  # not the exploding step
+    assert np.abs(state.velocities()).max() < 10.0  # not the exploding step
     assert int(state.nonfinite_count[None]) == 0
     integ.step(model, state, 1e-5)  # h w = 0.03: stable
     assert state.step_count == last + 1
@@ -196,8 +194,8 @@ def test_retry_policy_recovers_the_spring_example():
     assert len(events) == 1 and events[0]["step"] == 1
     assert events[0]["substeps"] == 32 and events[0]["method"] == "symplectic_euler"
     assert events[0]["quantity"] == "energy"
-    x = state.particle_x.to_numpy()
-    v = state.particle_v.to_numpy()
+    x = state.positions()
+    v = state.velocities()
     assert state.step_count == 120 and abs(np.linalg.norm(x[1] - x[0]) - 0.1) < 0.01
     # The modified energy of symplectic Euler bounds the swing: |E - E0| <= a / (1 - a) E0, a = h w / 2.
     a = 0.5 * math.sqrt(1e5 / 0.01) / 60 / 32
@@ -211,14 +209,14 @@ def test_retry_policy_gives_up_and_leaves_the_last_good_state():
     initial state (nothing after the last good state survives)."""
     ta.init("cpu", precision="f64")
     model, state = spring_pair()
-    x0, v0 = state.particle_x.to_numpy(), state.particle_v.to_numpy()
+    x0, v0 = state.positions(), state.velocities()
     # stability "ignore": no estimate, so no stable substep count to fall back on (see the next test)
     policy = {"divergence": "retry", "max_retries": 2, "stability": "ignore"}
     integ = ta.make_integrator("symplectic_euler", policy=policy)
     with pytest.raises(ta.DivergenceError, match="not recovered") as err:
         integ.step(model, state, 1 / 60)
     assert err.value.step == 1 and state.step_count == 0 and state.time == 0.0
-    assert np.array_equal(state.particle_x.to_numpy(), x0) and np.array_equal(state.particle_v.to_numpy(), v0)
+    assert np.array_equal(state.positions(), x0) and np.array_equal(state.velocities(), v0)
 
 
 def test_retry_takes_the_stable_substep_count_when_halvings_run_out():
@@ -234,10 +232,7 @@ def test_retry_takes_the_stable_substep_count_when_halvings_run_out():
     recovered = [e for e in events if e["kind"] == "divergence_recovered"]
     limit = 2.0 / math.sqrt(1e5 / 0.01)
     assert len(recovered) == 1 and recovered[0]["substeps"] == math.ceil((1 / 60) / (0.8 * limit))
-    assert (
-        state.step_count == 1
-        and abs(np.linalg.norm(np.diff(state.particle_x.to_numpy(), axis=0)) - 0.1) < 0.01
-    )
+    assert state.step_count == 1 and abs(np.linalg.norm(np.diff(state.positions(), axis=0)) - 0.1) < 0.01
 
 
 def test_a_solver_giving_up_under_a_recovering_policy_leaves_the_last_good_state():
@@ -246,13 +241,13 @@ def test_a_solver_giving_up_under_a_recovering_policy_leaves_the_last_good_state
     before the step (no half-done emission, substeps or time)."""
     ta.init("cpu", precision="f64")
     model, state = spring_pair()
-    x0, v0 = state.particle_x.to_numpy(), state.particle_v.to_numpy()
+    x0, v0 = state.positions(), state.velocities()
     policy = {"divergence": "retry", "nonconvergence": "raise", "stability": "ignore"}
     integ = ta.make_integrator("rk45", max_rejected=3, policy=policy)
     with pytest.raises(ta.ConvergenceError):
         integ.step(model, state, 1 / 60)
     assert state.step_count == 0 and state.time == 0.0
-    assert np.array_equal(state.particle_x.to_numpy(), x0) and np.array_equal(state.particle_v.to_numpy(), v0)
+    assert np.array_equal(state.positions(), x0) and np.array_equal(state.velocities(), v0)
 
 
 def test_implicit_fallback_recovers_and_records_it():
@@ -267,8 +262,8 @@ def test_implicit_fallback_recovers_and_records_it():
         integ.step(model, state, 1 / 60)
     events = [e for e in integ.stepper_for(model).health.events if e["kind"] == "divergence_recovered"]
     assert len(events) == 1 and events[0]["method"] == "implicit_euler" and events[0]["substeps"] == 1
-    x = state.particle_x.to_numpy()
-    v = state.particle_v.to_numpy()
+    x = state.positions()
+    v = state.velocities()
     assert abs(np.linalg.norm(x[1] - x[0]) - 0.1) < 0.01
     energy = 0.5 * 0.01 * v[1] @ v[1] + 0.5 * 1e5 * (np.linalg.norm(x[1] - x[0]) - 0.1) ** 2
     assert energy <= 0.005 * (1 + 1e-9)

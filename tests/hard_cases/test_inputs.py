@@ -267,7 +267,7 @@ def test_float64_holds_what_float32_cannot():
     b = ta.Builder()
     b.add_particles([[1e300, 0, 0], [0, 0, 0]], mass=[1e-45, 1.0])
     state = b.finalize().state()
-    assert state.particle_x.to_numpy()[0, 0] == 1e300
+    assert state.positions()[0, 0] == 1e300
 
 
 @pytest.mark.parametrize("seed", [2**32, 2**32 + 7, 2**64, -1, -(2**32), 1.5, None, "7", True])

@@ -29,8 +29,8 @@ def stiff_cloth(n=32, k=1e4):
 
 def total_energy(model, state):
     """Kinetic + spring + gravitational energy [J] (gravity along -y, 9.81 m/s²)."""
-    x = state.particle_x.to_numpy().astype(np.float64)
-    v = state.particle_v.to_numpy().astype(np.float64)
+    x = state.positions().astype(np.float64)
+    v = state.velocities().astype(np.float64)
     m = model.particle_masses()
     return 0.5 * np.sum(m[:, None] * v * v) + model.springs.energy(x) + 9.81 * np.sum(m * x[:, 1])
 
@@ -55,11 +55,11 @@ def test_raises_under_policy():
     """Pass: with policy stability="raise" the same step raises StabilityError before the state moves."""
     model = stiff_cloth()
     state = model.state()
-    x0 = state.particle_x.to_numpy()
+    x0 = state.positions()
     integ = ta.make_integrator("symplectic_euler", policy={"stability": "raise"})
     with pytest.raises(ta.StabilityError, match="stability limit"):
         integ.step(model, state, FRAME_DT)
-    np.testing.assert_array_equal(state.particle_x.to_numpy(), x0)
+    np.testing.assert_array_equal(state.positions(), x0)
 
 
 @pytest.mark.parametrize("case", ["stable_dt", "implicit_euler", "ignore"])
@@ -109,12 +109,12 @@ def test_auto_substeps_keep_it_stable():
                 integ.step(model, state, FRAME_DT / n)
             integ.stepper_for(model).check(state)
             assert total_energy(model, state) <= e0 + 0.01 * mass * 9.81
-            assert np.linalg.norm(state.particle_v.to_numpy(), axis=1).max() < 10.0
+            assert np.linalg.norm(state.velocities(), axis=1).max() < 10.0
 
     fixed = model.state()
     integ = ta.make_integrator("symplectic_euler", policy={"stability": "ignore"}, check_every=10**9)
     for _ in range(6):
         integ.step(model, fixed, FRAME_DT)
-    x = fixed.particle_x.to_numpy()
+    x = fixed.positions()
     exploded = not np.all(np.isfinite(x)) or np.abs(x).max() > 1e3 or total_energy(model, fixed) > e0 + 1e6
     assert exploded
