@@ -77,8 +77,8 @@ def _solver(model):
             linear_solver="pcg", tol=ETA_MAX, max_iterations=20_000, warm_start=False
         )
         integ.bind(model)
-        n = model.particle_count
-        got = (integ, *(ti.Vector.field(3, float, n) for _ in range(4)))
+        rows = model.particle_capacity  # the particle count, or its bucket (capacity.py)
+        got = (integ, *(ti.Vector.field(3, float, rows) for _ in range(4)))
         _SOLVERS[model] = got
     return got
 
@@ -257,12 +257,13 @@ def _newton_step(model, state, integ, xf, vf, xo, vo, x, zero_f, h, eta, floor) 
     """dx of one regularised Newton step at positions x (N,3): (M / h^2 + (1 + beta / h) K) dx = f, by
     PCG to the relative tolerance eta or the absolute residual `floor` [N] (the system's right-hand side
     is h f: its floor is h floor), so a right-hand side at round-off does not iterate to the cap."""
-    xf.from_numpy(x.astype(np_float()))
-    vf.from_numpy(zero_f)
+    n = model.particle_count
+    xf.from_numpy(model.padded(x))
+    vf.from_numpy(model.padded(zero_f))
     if integ.system is None:  # pointwise forces only: the integrator's 3x3 solves per particle
         integ.advance(model, state, xf, vf, xo, vo, state.time, state.time, h, state.step_count + 1, False)
-        return xo.to_numpy().astype(np.float64) - x
+        return xo.to_numpy()[:n].astype(np.float64) - x
     integ.linear_solver.tol = eta
     integ._assemble(model, integ.system, xf, vf, state.time, h, False)
     integ.last_solve = integ.linear_solver.solve(integ.system, atol=h * floor)
-    return h * integ.system.solution.to_numpy().astype(np.float64)
+    return h * integ.system.solution.to_numpy()[:n].astype(np.float64)

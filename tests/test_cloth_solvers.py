@@ -158,7 +158,7 @@ def test_implicit_matrix_and_rhs_match_central_differences_of_forces(scene):
     a1 = system.matvec(p)
     system.assemble(x, u, h2)
     a2 = system.matvec(p)
-    b2 = system.rhs.to_numpy()
+    b2 = system.rhs.to_numpy()[: len(x)]  # capacity rows under buckets
 
     # Two step sizes separate the stiffness and damping products: A(h) p - M p = -h Kv p - h^2 Kx p.
     r1, r2 = (a - m[:, None] * p for a in (a1, a2))
