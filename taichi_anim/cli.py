@@ -192,7 +192,8 @@ def _demo(args) -> int:
     try:
         with warnings.catch_warnings(record=True) as caught:  # e.g. "gpu" fell back to the CPU: one line
             warnings.simplefilter("always", RuntimeWarning)
-            runtime.init(args.arch, size_buckets=args.size_buckets == "on")
+            buckets = None if args.size_buckets is None else args.size_buckets == "on"  # None: environment
+            runtime.init(args.arch, size_buckets=buckets)
     except RuntimeError as e:  # e.g. --arch cuda on a machine without CUDA
         print(f"taichi-anim: error: {e}", file=sys.stderr)
         return 2

@@ -97,6 +97,8 @@ class Model(*MODEL_PARTS):
         sized = self.particle_capacity if self.size_buckets else n
         if self.size_buckets:  # each term's entries at its element bucket (springs: 2 per spring)
             entries = sum(capacity.bucket(t.count) * (t.entry_count // max(t.count, 1)) for t in elements)
+        if self.size_buckets:  # run.json says the arrays were bucketed, and to what
+            self.settings["size_buckets"] = {"particle_capacity": self.particle_capacity}
         self.work = sized + entries  # the size that decides fused frames (Stepper.frame_mode)
         self.serial = serial_loops(sized + entries // 8)
 

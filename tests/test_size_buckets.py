@@ -148,3 +148,16 @@ def test_pool_returns_a_dropped_owners_fields_oldest_first():
     assert capacity.pooled_count() >= 2
     ta.init("cpu", precision="f64")
     assert capacity.pooled_count() == 0
+
+
+def test_demo_option_buckets_the_run_and_says_so(tmp_path, buckets_reset):
+    from taichi_anim.cli import main
+
+    argv = ["demo", "cloth", "--frames", "2", "--no-export", "--quiet", "--integrator", "symplectic_euler"]
+    assert main([*argv, "--size-buckets", "on", "--out", str(tmp_path / "on")]) == 0
+    on = json.loads((tmp_path / "on" / "run.json").read_text())
+    assert on["settings"]["model"]["size_buckets"] == {"particle_capacity": 4096}  # 48^2 = 2304 vertices
+    assert main([*argv, "--size-buckets", "off", "--out", str(tmp_path / "off")]) == 0
+    off = json.loads((tmp_path / "off" / "run.json").read_text())
+    assert "size_buckets" not in off["settings"]["model"]
+    assert on["status"] == off["status"] == "complete"
