@@ -12,7 +12,7 @@ import taichi as ti
 from . import capacity
 from .bodies import KINDS, MODEL_PARTS
 from .collision.motion import attachment_codes
-from .runtime import data_oriented, np_float, serial_loops
+from .runtime import data_oriented, serial_loops
 from .state import State
 from .terms import Springs
 
@@ -40,6 +40,8 @@ class Model(*MODEL_PARTS):
     ):
         # Capacity buckets (capacity.py): arrays sized to a power of two, live counts read at run time.
         self.size_buckets = capacity.enabled()
+        if self.size_buckets:
+            capacity.collect_dropped()  # a dropped scene's fields back in the pool before this one asks
         # Each kind's arrays, from the builder's parts (bodies: {kind name: init_model's arguments}).
         self.kinds = KINDS
         for kind in KINDS:
@@ -55,7 +57,10 @@ class Model(*MODEL_PARTS):
         # Attachments: pinned particles put on animated targets at the end of each step.
         self.attachments = tuple(attachments)
         self.attachment_count = len(self.attachments)
-        self.particle_attachment = attachment_codes(n, self.attachments) if self.attachments else None
+        self.particle_attachment = None
+        if self.attachments:
+            codes = self.particle_array(self, "particle_attachment", ti.i32)
+            self.particle_attachment = attachment_codes(n, self.attachments, codes)
         # Sphere contacts: the options the scene asked for (validated by the Builder), or None. The contact
         # solver (collision/spheres.py) is built from them by the Stepper, which owns its fields.
         self.sphere_contacts = None if contacts is None else MappingProxyType(dict(contacts))
@@ -226,17 +231,16 @@ class _ForceProbe:
     """Total forces from NumPy for tests and reports, with caches of its own (never a solver's)."""
 
     def __init__(self, model):
-        n = model.particle_count
         self.model = model
         self.caches = model.make_caches()
-        self.fields = tuple(ti.Vector.field(3, float, n) for _ in range(3))
+        self.fields = tuple(model.particle_array(self, f"probe_{v}", dims=(3,)) for v in "xvf")
 
     def forces(self, x, v, t: float) -> np.ndarray:
         xf, vf, ff = self.fields
-        xf.from_numpy(np.asarray(x, dtype=np_float()))
-        vf.from_numpy(np.asarray(v, dtype=np_float()))
+        xf.from_numpy(self.model.padded(x))
+        vf.from_numpy(self.model.padded(v))
         self._forces(self.model, xf, vf, ff, t)
-        return ff.to_numpy().astype(np.float64)
+        return ff.to_numpy()[: self.model.particle_count].astype(np.float64)
 
     @ti.kernel
     def _forces(

@@ -47,7 +47,6 @@ would compile again for every new State.
 """
 
 import math
-import weakref
 
 import numpy as np
 import taichi as ti
@@ -65,13 +64,11 @@ ANDERSON_DEPTH = 3
 MIN_STEP = 1.0 / 2**14  # shortest line-search step before a step is taken anyway
 STALL = 20  # stop when this many iterations lowered neither the best residual nor the energy
 
-# One solver per model (kernels compile once per model, not per call); dropped with the model.
-_SOLVERS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-
 
 def _solver(model):
-    """(integrator, x, v, x out, v out fields) reused by every solve of `model`."""
-    got = _SOLVERS.get(model)
+    """(integrator, x, v, x out, v out fields) reused by every solve of `model` (kernels compile once per
+    model, not per call), kept on the model: dropped with it."""
+    got = getattr(model, "_static_solver", None)
     if got is None:
         integ = IntegratorImplicitEuler(
             linear_solver="pcg", tol=ETA_MAX, max_iterations=20_000, warm_start=False
@@ -79,7 +76,7 @@ def _solver(model):
         integ.bind(model)
         rows = model.particle_capacity  # the particle count, or its bucket (capacity.py)
         got = (integ, *(ti.Vector.field(3, float, rows) for _ in range(4)))
-        _SOLVERS[model] = got
+        model._static_solver = got  # on the model: a module-level map's value kept its key alive
     return got
 
 

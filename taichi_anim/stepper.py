@@ -302,8 +302,10 @@ class Stepper:
         every = 1 if always else self.integrator.check_every
         saved = None if self._backup_of is None else self._backup_of()
         if saved is not state or state.step_count % every == 0:
-            # With check_every > 1 several steps may pass before a rollback: every trail column is kept.
-            state.save(self._backup, whole_trail=every > 1)
+            # With check_every > 1 several steps may pass before a rollback: every trail column is kept; so
+            # does the first save of a state (the backup's columns were never written: a rollback within
+            # the trail's length would put them back).
+            state.save(self._backup, whole_trail=every > 1 or saved is not state)
             self._backup_of = weakref.ref(state)
 
     def _roll_back(self, state, error=None):

@@ -394,14 +394,15 @@ class Attachment:
         return x
 
 
-def attachment_codes(particle_count: int, attachments) -> "ti.Field":
-    """(N,) int32 field: for each particle -1, or j * A + a for particle j of attachment a (A of them)."""
+def attachment_codes(particle_count: int, attachments, field=None) -> "ti.Field":
+    """(N,) int32 field: for each particle -1, or j * A + a for particle j of attachment a (A of them);
+    `field`: the int32 field to fill (its rows past N get -1 too), or None for a new one of N rows."""
     count = len(attachments)
-    codes = np.full(particle_count, -1, dtype=np.int32)
+    field = ti.field(ti.i32, particle_count) if field is None else field
+    codes = np.full(field.shape[0], -1, dtype=np.int32)
     for a, att in enumerate(attachments):
         att.allocate()
         codes[att.particles] = np.arange(att.count) * count + a
-    field = ti.field(ti.i32, particle_count)
     field.from_numpy(codes)
     return field
 

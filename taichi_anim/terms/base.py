@@ -208,6 +208,7 @@ class ElementTerm(TermBounds):
         (rows past the live counts: zeros, which no loop reaches), then the subclass's (place_arrays)."""
         role = self._role()
         self.particle_rows, self.element_rows = particle_rows, element_rows
+        self._energy_fields = self._array_fields = None  # diagnostics' scratch follows the new rows
         start, entry = adjacency(self.vertices, particle_rows)
         self.element_vertex = make(self, f"{role}_vertex", ti.i32, element_rows, (self.arity,))
         self.element_vertex.from_numpy(_padded(self.vertices, element_rows, np.int32))
