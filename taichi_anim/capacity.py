@@ -112,7 +112,8 @@ def _give_back(prog, key, serial: int, f) -> None:
 
 def collect_dropped() -> None:
     """Run Python's cycle collector, so that owners dropped in reference cycles (a model and its terms, a
-    stepper and its integrator) give their fields back before a new scene allocates (~10-50 ms)."""
+    stepper and its integrator) give their fields back before a new scene allocates (13-21 ms measured
+    after building two demo scenes)."""
     gc.collect()
 
 
