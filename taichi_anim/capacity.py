@@ -27,6 +27,7 @@ import itertools
 import os
 import weakref
 
+import numpy as np
 import taichi as ti
 from taichi.lang import impl
 
@@ -49,6 +50,15 @@ def enabled() -> bool:
     if _setting["on"] is not None:
         return _setting["on"]
     return os.environ.get("TAICHI_ANIM_SIZE_BUCKETS", "") not in ("", "0")
+
+
+def padded(a, rows: int, dtype) -> np.ndarray:
+    """`a` with zero rows up to `rows` (a bucket's rows past the live count), as dtype: what from_numpy
+    of a bucketed field takes."""
+    a = np.asarray(a)
+    out = np.zeros((rows, *a.shape[1:]), dtype=dtype)
+    out[: len(a)] = a
+    return out
 
 
 def bucket(n: int) -> int:

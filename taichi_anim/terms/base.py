@@ -132,14 +132,6 @@ class ElementCache:
         self.S = make(self, f"{role}_S", float, (count, arity, arity), (3, 3)) if implicit else None
 
 
-def _padded(a, rows: int, dtype) -> np.ndarray:
-    """`a` with zero rows up to `rows` (capacity buckets' padding), as dtype."""
-    a = np.asarray(a)
-    out = np.zeros((rows, *a.shape[1:]), dtype=dtype)
-    out[: len(a)] = a
-    return out
-
-
 def adjacency(vertices: np.ndarray, particle_count: int):
     """CSR list of (element, slot) per particle: start (N+1,), entry (E*arity,) = e*arity + slot,
     sorted by particle, then element (the fixed order of every gather)."""
@@ -211,11 +203,11 @@ class ElementTerm(TermBounds):
         self._energy_fields = self._array_fields = None  # diagnostics' scratch follows the new rows
         start, entry = adjacency(self.vertices, particle_rows)
         self.element_vertex = make(self, f"{role}_vertex", ti.i32, element_rows, (self.arity,))
-        self.element_vertex.from_numpy(_padded(self.vertices, element_rows, np.int32))
+        self.element_vertex.from_numpy(capacity.padded(self.vertices, element_rows, np.int32))
         self.adj_start = make(self, f"{role}_adj_start", ti.i32, particle_rows + 1)
         self.adj_entry = make(self, f"{role}_adj_entry", ti.i32, element_rows * self.arity)
         self.adj_start.from_numpy(start)
-        self.adj_entry.from_numpy(_padded(entry, element_rows * self.arity, np.int32))
+        self.adj_entry.from_numpy(capacity.padded(entry, element_rows * self.arity, np.int32))
         self.place_arrays(make, element_rows)
 
     def place_arrays(self, make, rows: int) -> None:
@@ -337,7 +329,7 @@ class ElementTerm(TermBounds):
                 self._make(self, f"{role}_energy", float, ()),
             )
         xf, out = self._energy_fields
-        xf.from_numpy(_padded(x, self.particle_rows, np_float()))
+        xf.from_numpy(capacity.padded(x, self.particle_rows, np_float()))
         self._energy(xf, out)
         return float(out[None])
 
@@ -375,8 +367,8 @@ class ElementTerm(TermBounds):
             )
             self._array_fields = fields
         xf, vf, F, FL, S, KV = fields
-        xf.from_numpy(_padded(x, self.particle_rows, np_float()))
-        vf.from_numpy(_padded(v, self.particle_rows, np_float()))
+        xf.from_numpy(capacity.padded(x, self.particle_rows, np_float()))
+        vf.from_numpy(capacity.padded(v, self.particle_rows, np_float()))
         self._element_arrays(xf, vf, F, FL, S, KV, t, h)
         return tuple(a.to_numpy()[: self.count].astype(np.float64) for a in (F, FL, S, KV))
 

@@ -49,7 +49,7 @@ import taichi as ti
 from .. import capacity, validate
 from ..errors import ParameterError
 from ..runtime import data_oriented, np_float
-from .base import ElementTerm, _padded
+from .base import ElementTerm
 
 _TINY = 1e-30  # [m^2, m^4] floor of |e|^2 and |n|^2: representable in f32, far below any real mesh
 
@@ -165,7 +165,7 @@ class BendingDihedral(ElementTerm):
         """Per hinge: theta0, k w, beta (beta per hinge so a Builder can merge garments with their own)."""
         param = np.stack([self.rest_angle, self.stiffness * self.weight, np.full(self.count, self.beta)], 1)
         self.hinge_param = make(self, "hinge_param", float, rows, (3,))
-        self.hinge_param.from_numpy(_padded(param, rows, np_float()))
+        self.hinge_param.from_numpy(capacity.padded(param, rows, np_float()))
 
     @classmethod
     def from_mesh(cls, particle_count: int, triangles, rest_positions, **kw) -> "BendingDihedral":

@@ -41,13 +41,6 @@ def spring_stiffness_apply(n, axial, transverse, p):
     return transverse * p + (axial - transverse) * t * n
 
 
-def _padded(a, rows: int, dtype) -> np.ndarray:
-    """`a` with zero rows up to `rows` (capacity buckets' padding), as dtype."""
-    out = np.zeros((rows, *np.shape(a)[1:]), dtype=dtype)
-    out[: len(a)] = a
-    return out
-
-
 @data_oriented
 class SpringCache:
     """A solver's scratch for the springs: force on each spring's first end (S,) [N]; with implicit
@@ -125,8 +118,8 @@ class Springs(TermBounds):
         self.adj_spring = make(self, "spring_adj_spring", ti.i32, 2 * cap)
         self.adj_other = make(self, "spring_adj_other", ti.i32, 2 * cap)
         self.adj_start.from_numpy(start)
-        self.adj_spring.from_numpy(_padded(signed[order], 2 * cap, np.int32))
-        self.adj_other.from_numpy(_padded(other[order], 2 * cap, np.int32))
+        self.adj_spring.from_numpy(capacity.padded(signed[order], 2 * cap, np.int32))
+        self.adj_other.from_numpy(capacity.padded(other[order], 2 * cap, np.int32))
         # Where each spring sits in the adjacency: (entry at its first end, entry at its second end).
         where = np.empty((s, 2), dtype=np.int32)
         sorted_signed = signed[order]
@@ -134,12 +127,12 @@ class Springs(TermBounds):
         where[sorted_signed[first] - 1, 0] = np.flatnonzero(first)
         where[-sorted_signed[~first] - 1, 1] = np.flatnonzero(~first)
         self.spring_entry = make(self, "spring_entry", ti.i32, cap, (2,))
-        self.spring_entry.from_numpy(_padded(where, cap, np.int32))
+        self.spring_entry.from_numpy(capacity.padded(where, cap, np.int32))
         self.spring_pair = make(self, "spring_pair", ti.i32, cap, (2,))
         self.spring_param = make(self, "spring_param", float, cap, (3,))  # rest length, stiffness, damping
-        self.spring_pair.from_numpy(_padded(pairs, cap, np.int32))
+        self.spring_pair.from_numpy(capacity.padded(pairs, cap, np.int32))
         param = np.stack([self.rest_length, self.stiffness, self.damping], axis=1)
-        self.spring_param.from_numpy(_padded(param, cap, f))
+        self.spring_param.from_numpy(capacity.padded(param, cap, f))
 
     def settings(self) -> dict:
         """The term's settings for run.json."""

@@ -65,10 +65,7 @@ class ParticleModel:
     def padded(self, a, dtype=None) -> np.ndarray:
         """`a` (particle_count rows) with zero rows up to particle_capacity, as the float fields' dtype
         (or `dtype`): what from_numpy of a particle array takes."""
-        a = np.asarray(a)
-        out = np.zeros((self.particle_capacity, *a.shape[1:]), dtype=dtype or np_float())
-        out[: len(a)] = a
-        return out
+        return capacity.padded(a, self.particle_capacity, dtype or np_float())
 
     @ti.func
     def live_particles(self):
