@@ -3,8 +3,13 @@
 Scene (both sides): a disc emitter of capacity N (centre (0, 0.25, 0), radius 0.25 m, +y, 4 m/s +-10 %,
 cone half-angle 0.5 rad, lifetime 0.5 s +-20 %, rate N / 0.5 s so the pool stays full), gravity, a
 container box [-1, 1] x [0, 2] x [-1, 1] m with restitution 0.5; dt = 1/600 s, frames of 10 steps.
-Measured once the pool is full: particle-steps/s = alive x steps / wall time, and the fused step's bytes
-(x, v read and written, the death time read: 52 B per particle-step) against a NumPy copy's bandwidth.
+Measured once the pool is full: particle-steps/s = alive x steps / wall time. Ours runs a frame the two
+ways the engine can: `Stepper.advance(state, dt, 10)` (the default for a scene's frame: one blocked
+launch takes each particle through the 10 substeps, integrators/blocked.py) and ten `step(state, dt)`
+calls (one emission and one fused step kernel per substep, the path before blocked frames). Bytes per
+particle-step: the per-step path moves x, v read and written and the death time read, 52 B; the blocked
+frame about 80 B per particle per frame (x, v, birth, death read and written, its scratch), 8 B per
+particle-step; both against a NumPy copy's bandwidth.
 
     .venv/bin/python benchmarks/particles.py [--quick]
 """
@@ -21,7 +26,11 @@ DT, STEPS = 1.0 / 600.0, 10
 LO, HI, RESTITUTION = (-1.0, 0.0, -1.0), (1.0, 2.0, 1.0), 0.5
 CENTER, RADIUS, SPEED, SPEED_JITTER, SPREAD = (0.0, 0.25, 0.0), 0.25, 4.0, 0.1, 0.5
 LIFETIME, LIFE_JITTER, G = 0.5, 0.2, -9.81
-BYTES = 2 * 3 * 4 * 2 + 4  # per alive particle-step of the fused kernel
+BYTES = 2 * 3 * 4 * 2 + 4  # per alive particle-step of the per-step fused kernel
+# Per particle-step of the blocked frame, whose launch moves per slot and frame: x, v, birth, death read
+# and written (2 x 32 B), the free bits (1/8 B), its scratch free_from and birth_head written and read
+# (16 B): ~80 B a frame of STEPS substeps.
+FRAME_BYTES = (2 * 32 + 1 / 8 + 16) / STEPS
 FILL_FRAMES = math.ceil(LIFETIME * (1 + LIFE_JITTER) / DT / STEPS) + 2
 
 
@@ -46,13 +55,17 @@ def build(n: int):
     return model, model.state(), ta.make_integrator("symplectic_euler", check_every=STEPS)
 
 
-def ours(n: int, alive: list):
+def ours(n: int, alive: list, per_step: bool = False):
     init("f32")
     model, state, integ = build(n)
+    stepper = integ.stepper_for(model)
 
     def frame():
-        for _ in range(STEPS):
-            integ.step(model, state, DT)
+        if per_step:
+            for _ in range(STEPS):
+                stepper.step(state, DT)
+        else:
+            stepper.advance(state, DT, STEPS)
         alive.append(int(state.alive_mask().sum()))
 
     for _ in range(FILL_FRAMES):
@@ -136,10 +149,11 @@ def main(argv=None) -> None:
     def compile_run():
         a = clock()
         model, state, integ = build(10**4)
-        integ.step(model, state, DT)
+        stepper = integ.stepper_for(model)
+        stepper.advance(state, DT, STEPS)  # a frame, as timed below
         first = clock() - a
         a = clock()
-        integ.step(model, state, DT)
+        stepper.advance(state, DT, STEPS)
         return first, clock() - a
 
     comp = compile_times(compile_run)
@@ -147,7 +161,8 @@ def main(argv=None) -> None:
     for n in sizes:
         log(f"{n:.0e} particles")
         res = {}
-        for name, make in (("taichi_anim", ours), ("numpy", numpy_peer)):
+        engines = (("taichi_anim", ours), ("per step", lambda n, a: ours(n, a, True)), ("numpy", numpy_peer))
+        for name, make in engines:
             alive: list = []
             r = time_run(
                 Run(name, lambda make=make, alive=alive, n=n: make(n, alive)), frames=frames, warmup=1
@@ -155,11 +170,13 @@ def main(argv=None) -> None:
             r["alive"] = float(np.mean(alive[-r["frames"] :]))
             r["rate"] = r["alive"] * STEPS / r["median"]
             res[name] = r
-        t, p = res["taichi_anim"], res["numpy"]
-        gbs = BYTES * t["rate"] / 1e9
-        speedup = f"**{t['rate'] / p['rate']:.2f}x**"
-        rows.append([f"{n:.0e}", f"{t['alive'] / n:.3f}", f"{t['rate']:.3g}", f"{p['rate']:.3g}", speedup])
-        rows[-1] += [f"{gbs:.1f}", f"{gbs / bw:.2f}", f"{t['cores']:.2f}"]
+        t, s, p = res["taichi_anim"], res["per step"], res["numpy"]
+        gbs, step_gbs = FRAME_BYTES * t["rate"] / 1e9, BYTES * s["rate"] / 1e9
+        rows.append(
+            [f"{n:.0e}", f"{t['alive'] / n:.3f}", f"{t['rate']:.3g}", f"{s['rate']:.3g}", f"{p['rate']:.3g}"]
+        )
+        rows[-1] += [f"**{t['rate'] / p['rate']:.2f}x**", f"{s['rate'] / p['rate']:.2f}x"]
+        rows[-1] += [f"{gbs:.1f}", f"{gbs / bw:.2f}", f"{step_gbs / bw:.2f}", f"{t['cores']:.2f}"]
         data.append({"n": n, **res})
     page = Page(
         "particles",
@@ -168,8 +185,10 @@ def main(argv=None) -> None:
         {
             "scene": "disc emitter (pool N, lifetime 0.5 s +-20 %), gravity, box (restitution 0.5)",
             "step": f"symplectic Euler, dt 1/600 s, {STEPS} steps a frame, f32, after {FILL_FRAMES} frames",
+            "taichi_anim": f"Stepper.advance(state, dt, {STEPS}): one blocked launch per frame",
+            "per step": f"{STEPS} x Stepper.step(state, dt): emission + fused step kernel per substep",
             "frames timed": frames,
-            "bytes per particle-step": BYTES,
+            "bytes per particle-step": f"per step {BYTES}; blocked frame {FRAME_BYTES:g}",
             "NumPy copy bandwidth": f"{bw:.1f} GB/s",
         },
     )
@@ -179,20 +198,25 @@ def main(argv=None) -> None:
             "N",
             "alive",
             "taichi_anim particle-steps/s",
+            "per step",
             "NumPy",
             "speed-up",
+            "per step / NumPy",
             "GB/s moved",
             "of copy bandwidth",
+            "per step: of copy bandwidth",
             "cores busy",
         ],
         rows,
     )
     comp_rows = [[m, fmt_s(c["first"]), fmt_s(c["steady"]), fmt_s(c["compile"])] for m, c in comp.items()]
     page.table(
-        "Compile (10^4 pool, fresh ta.init)", ["offline cache", "first step", "steady", "compile"], comp_rows
+        "Compile (10^4 pool, fresh ta.init)",
+        ["offline cache", "first frame", "steady frame", "compile"],
+        comp_rows,
     )
     page.plot(
-        {k: (sizes, [d[k]["rate"] for d in data]) for k in ("taichi_anim", "numpy")},
+        {k: (sizes, [d[k]["rate"] for d in data]) for k in ("taichi_anim", "per step", "numpy")},
         xlabel="particles",
         ylabel="particle-steps/s",
     )

@@ -6,16 +6,27 @@ import taichi as ti
 
 from .collision import collide
 from .collision.motion import follow_attachments
-from .watchdog import watch_particle
+from .watchdog import watch_against, watch_limits
 
 
 @ti.func
 def finish_particle(
     model: ti.template(), state: ti.template(), mode: ti.template(), i, x0, v0, x1, v1, t, h, step
 ):
+    """`finished`, written to particle i of the state."""
+    x, v = finished(model, state, mode, i, x0, v0, x1, v1, t, h, step, watch_limits(state))
+    state.particle_x[i] = x
+    state.particle_v[i] = v
+
+
+@ti.func
+def finished(
+    model: ti.template(), state: ti.template(), mode: ti.template(), i, x0, v0, x1, v1, t, h, step, lim
+):
     """The end of a step [t, t + h] for particle i, fused into a method's last kernel: colliders against
     the step's start point (x0, v0), attached particles onto their targets, the divergence watchdog
-    (non-finite or out-of-bounds results, watchdog.py), and the write.
+    (non-finite or out-of-bounds results against the bounds `lim`, watchdog.watch_limits); returns the
+    end-of-step (x, v).
 
     Pinned particles (mass 0) are kinematic, as in Blender, Houdini Vellum and Newton: colliders never
     move them, even one placed inside a collider (State.set_positions); they go only where their
@@ -26,6 +37,5 @@ def finish_particle(
             x, v = collide(model.colliders, mode, x0, v0, x1, v1, t, h, model.radius(i), model.rest_speed)
     if ti.static(model.attachment_count > 0):
         x, v = follow_attachments(model.attachments, model.particle_attachment, i, x0, x, v, t + h, h)
-    watch_particle(state, i, x, v, t + h, step)
-    state.particle_x[i] = x
-    state.particle_v[i] = v
+    watch_against(state, lim, i, x, v, step)
+    return x, v

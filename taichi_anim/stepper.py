@@ -14,6 +14,7 @@ import weakref
 from . import runtime, stability, validate
 from .errors import DivergenceError, ParameterError
 from .health import Health
+from .integrators.blocked import BlockedFrame
 from .integrators.implicit_euler import IntegratorImplicitEuler
 from .solvers import check_solver, make_solvers
 from .state import State
@@ -65,6 +66,7 @@ class Stepper:
         integrator.health = self.health  # solvers inside the method report here
         self._guarded_dt = None  # the step the stability guard last checked
         self._frame_mode = None  # how a frame of substeps is launched (frame_mode), chosen on first use
+        self._blocked = None  # the blocked frame's scratch (BlockedFrame), made on its first frame
         self.watchdog = Watchdog(model)
         # The rollback point (a State saved at the last good checked step, `_keep_good`): recovering
         # policies redo the step from it, and with policy.keep_last_good a DivergenceError leaves the state
@@ -209,6 +211,8 @@ class Stepper:
 
     def frame_mode(self) -> dict:
         """How step(state, dt, substeps) launches a frame, and why (recorded in run.json):
+        "blocked": one kernel takes each particle through every substep (particles that do not act on
+        each other: integrators/blocked.py);
         "serial_frame": one kernel runs every substep, serially (CPU, work below FRAME_SERIAL_BELOW);
         "launches": the method's kernel once per substep with nothing else in between; "steps": the
         full step per substep (what the scene needs between substeps: emission, contacts, moving
@@ -219,11 +223,16 @@ class Stepper:
 
     def _choose_frame_mode(self) -> dict:
         model, method = self.model, self.integrator
+        on_cpu = runtime.backend_name() == "cpu"
+        # Particles that do not act on each other go through a frame one at a time (integrators/
+        # blocked.py). Emitters' births are planned in a serial pass: on the CPU only (not measured on GPUs).
+        independent = method.fusable and not model.element_terms and not model.attachment_count
+        blockable_births = independent and on_cpu
         needs = [
             why
             for why, present in (
                 (f"{method.name} prepares stages between substeps", not method.fusable),
-                ("emitters", model.emitter_count > 0),
+                ("emitters", model.emitter_count > 0 and not blockable_births),
                 *((s.name, True) for s in self.solvers),
                 ("colliders prepared per step", bool(model._prepared_colliders)),
                 ("trails", model.trail_length > 0),
@@ -236,10 +245,15 @@ class Stepper:
         ]
         if needs:
             return {"mode": "steps", "reason": "per-step work: " + ", ".join(needs)}
+        if independent:
+            return {
+                "mode": "blocked",
+                "reason": "particles independent: each one through the frame in registers",
+            }
         work = model.work
-        if runtime.backend_name() == "cpu" and work < FRAME_SERIAL_BELOW:
+        if on_cpu and work < FRAME_SERIAL_BELOW:
             return {"mode": "serial_frame", "reason": f"work {work} < {FRAME_SERIAL_BELOW} on the CPU"}
-        where = "on the GPU" if runtime.backend_name() != "cpu" else f">= {FRAME_SERIAL_BELOW} on the CPU"
+        where = "on the GPU" if not on_cpu else f">= {FRAME_SERIAL_BELOW} on the CPU"
         return {"mode": "launches", "reason": f"work {work} {where}"}
 
     def _frame(self, state, h: float, n: int, mode: str) -> None:
@@ -254,7 +268,14 @@ class Stepper:
         self._keep_good(state)
         method, model = self.integrator, self.model
         first = state.step_count
-        if mode == "serial_frame":
+        if mode == "blocked":
+            if self._blocked is None:
+                self._blocked = BlockedFrame(model, method)
+            self._blocked.run(state, h, n)
+            method.evaluations += method.stages * n
+            for _ in range(n):
+                state.time += h
+        elif mode == "serial_frame":
             method._frame(model, state, state.time, h, n, first + 1)
             method.evaluations += method.stages * n
             for _ in range(n):

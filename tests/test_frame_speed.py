@@ -90,13 +90,17 @@ def test_frame_mode_is_chosen_by_size_and_needs():
     # So does a recovering divergence policy (a rollback point per step).
     retry = ta.make_integrator("symplectic_euler", policy={"divergence": "retry"}).stepper_for(_sheet(8))
     assert retry.frame_mode()["mode"] == "steps" and "rollback" in retry.frame_mode()["reason"]
-    # An emitter adds particles between substeps.
-    b = ta.Builder()
-    b.add_particle_emitter(capacity=64, rate=100.0)
-    b.add_force_gravity()
-    emitting = b.finalize()
-    mode = ta.make_integrator("symplectic_euler").stepper_for(emitting).frame_mode()
-    assert mode["mode"] == "steps" and "emitters" in mode["reason"]
+    # Particles that do not act on each other go through the frame one by one, emitters' births planned
+    # first (tests/test_blocked_frame.py); trails are recorded between substeps.
+    for trails, want in ((0, "blocked"), (4, "steps")):
+        b = ta.Builder()
+        b.add_particle_emitter(capacity=64, rate=100.0)
+        b.add_force_gravity()
+        if trails:
+            b.add_particle_trails(trails)
+        mode = ta.make_integrator("symplectic_euler").stepper_for(b.finalize()).frame_mode()
+        assert mode["mode"] == want, mode
+    assert "trails" in mode["reason"]
 
 
 def test_fused_frame_stops_at_the_step_that_diverged():

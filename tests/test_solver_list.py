@@ -65,7 +65,7 @@ def test_toy_damper_is_exactly_the_closed_form():
     model = _free_particles()
     state = model.state()
     stepper = ta.make_integrator("symplectic_euler").stepper_for(model)
-    assert stepper.frame_mode()["mode"] == "serial_frame"  # nothing between substeps yet
+    assert stepper.frame_mode()["mode"] == "blocked"  # nothing between substeps yet
     log = []
     stepper.add_solver(Damper(0.5, log))
     mode = stepper.frame_mode()

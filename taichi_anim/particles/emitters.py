@@ -110,16 +110,25 @@ class Emitter:
         d["slots"] = [self.start, self.start + self.capacity]
         return d
 
+    def plan(self, state, dt: float) -> int:
+        """The number of particles this emitter spawns in a step of dt [s] of `state`; carries the
+        fraction left over to the next step (`State.emit_carry`), so call it once per step, in order."""
+        want = self.s.rate * dt + state.emit_carry[self.index]
+        state.emit_carry[self.index] = want - int(want)
+        return min(int(want), self.capacity)
+
+    def slot_range(self) -> tuple[int, int, int, int, int]:
+        """(start, word_lo, word_hi, mask_lo, mask_hi): the slot range as kernel arguments (not
+        constants, so that an emitter of another capacity compiles nothing new)."""
+        return self.start, self.word_lo, self.word_hi, self.mask_lo, self.mask_hi
+
     def emit(self, state, t: float, dt: float, seed: int, step: int) -> None:
         """Spawn this step's particles at time t (they then live through the step). The fraction of a
         particle left over and the scan cursor are the state's (`State.emit_carry`, `emit_cursor`)."""
-        want = self.s.rate * dt + state.emit_carry[self.index]
-        n = min(int(want), self.capacity)
-        state.emit_carry[self.index] = want - int(want)
+        n = self.plan(state, dt)
         if n == 0:
             return
-        slots = (self.start, self.word_lo, self.word_hi, self.mask_lo, self.mask_hi)
-        self._emit(state, n, t, seed, step, *slots)
+        self._emit(state, n, t, seed, step, *self.slot_range())
 
     @ti.kernel
     def _emit(
@@ -135,36 +144,64 @@ class Emitter:
         mask_lo: ti.u32,
         mask_hi: ti.u32,
     ):
-        # One launch: a serial scan for free slots, then a parallel spawn into them. The slot range comes
-        # as arguments, not constants, so that an emitter of another capacity compiles nothing new.
-        words = word_hi - word_lo + 1
+        # One launch: a serial scan for free slots, then a parallel spawn into them.
         ti.loop_config(serialize=True)
         for _ in range(1):
-            cursor = state.emit_cursor[self.index]
-            found = 0
-            scanned = 0
-            while found < n and scanned < words:
-                w = word_lo + cursor
-                mask = ti.u32(0xFFFFFFFF)
-                if w == word_lo:
-                    mask &= mask_lo
-                if w == word_hi:
-                    mask &= mask_hi
-                bits = state.particle_free[w] & mask
-                while bits != 0 and found < n:
-                    low = bits & (~bits + ti.u32(1))  # lowest set bit
-                    state.emit_slot[start + found] = w * 32 + _bit_index(low)
-                    found += 1
-                    bits ^= low
-                    state.particle_free[w] ^= low
-                if found < n:  # this word is used up: move on (else more may be free here)
-                    cursor = (cursor + 1) % words
-                    scanned += 1
-            state.emit_found[self.index] = found
-            state.emit_cursor[self.index] = cursor
+            state.emit_found[self.index] = self.scan(
+                state, n, start, word_lo, word_hi, mask_lo, mask_hi, self, 0
+            )
         ti.loop_config(serialize=self.serial)
         for j in range(state.emit_found[self.index]):
             self._spawn_one(state, start, j, t, seed, step)
+
+    @ti.func
+    def scan(
+        self,
+        state: ti.template(),
+        n,
+        start,
+        word_lo,
+        word_hi,
+        mask_lo,
+        mask_hi,
+        slots: ti.template(),
+        ctx: ti.template(),
+    ):
+        """Take the first n free slots of this emitter's range, 32 per word from the rotating cursor, in
+        order: `slots.free_bits(state, w, ctx)` gives word w's free bits and `slots.take(state, slot,
+        found, start, ctx)` records a taken one (this emitter: the state's free bits; a blocked frame
+        (integrators/blocked.py): its plan of births). Returns how many were found."""
+        words = word_hi - word_lo + 1
+        cursor = state.emit_cursor[self.index]
+        found = 0
+        scanned = 0
+        while found < n and scanned < words:
+            w = word_lo + cursor
+            mask = ti.u32(0xFFFFFFFF)
+            if w == word_lo:
+                mask &= mask_lo
+            if w == word_hi:
+                mask &= mask_hi
+            bits = slots.free_bits(state, w, ctx) & mask
+            while bits != 0 and found < n:
+                low = bits & (~bits + ti.u32(1))  # lowest set bit
+                slots.take(state, w * 32 + _bit_index(low), found, start, ctx)
+                found += 1
+                bits ^= low
+            if found < n:  # this word is used up: move on (else more may be free here)
+                cursor = (cursor + 1) % words
+                scanned += 1
+        state.emit_cursor[self.index] = cursor
+        return found
+
+    @ti.func
+    def free_bits(self, state: ti.template(), w, ctx: ti.template()):
+        return state.particle_free[w]
+
+    @ti.func
+    def take(self, state: ti.template(), slot, found, start, ctx: ti.template()):
+        state.emit_slot[start + found] = slot
+        state.particle_free[slot >> 5] ^= ti.u32(1) << ti.cast(slot & 31, ti.u32)
 
     @ti.func
     def _sample(self, seed, step, j):
@@ -192,8 +229,12 @@ class Emitter:
         phi = 2.0 * math.pi * r[4]
         dirn = cos_t * axis + sin_t * (ti.cos(phi) * u + ti.sin(phi) * w)
         speed = self.s.speed * (1.0 + self.s.speed_jitter * (2.0 * r[5] - 1.0))
-        life = self.s.lifetime * (1.0 + self.s.lifetime_jitter * (2.0 * r[6] - 1.0))
-        return pos, speed * dirn, life
+        return pos, speed * dirn, self.life(r[6])
+
+    @ti.func
+    def life(self, u):
+        """A new particle's lifetime [s] from its uniform draw u (the 7th, k = 6, of `_sample`)."""
+        return self.s.lifetime * (1.0 + self.s.lifetime_jitter * (2.0 * u - 1.0))
 
     @ti.func
     def _spawn_one(self, state: ti.template(), start, j, t, seed, step):
