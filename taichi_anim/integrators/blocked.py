@@ -15,8 +15,8 @@ particle moves:
   2. one serial pass runs the emitters' scans of substeps 0, 1, ... with a slot's bit read as
      free_from <= k; a taken slot records its birth (substep, index in the batch) in a per-slot chain
      and gets the free_from of its new particle (whose lifetime is the same hash draw the birth makes);
-  3. one parallel pass steps each particle through the frame, born where its chain says, and writes
-     the free bits the frame ends with (32 slots per thread: no atomics).
+  3. one parallel pass steps each particle through the frame, born where its chain says, and sets the
+     free bits the frame ends with.
 The result is the step-by-step path's: the same births in the same slots, the same arithmetic per
 particle (tests/test_blocked_frame.py compares them)."""
 
@@ -34,9 +34,9 @@ from ..watchdog import watch_limits
 MAX_STEPS = 64
 NEVER = 2**30  # free_from of a slot whose particle outlives the launch
 # A launch's loops run serially on the CPU below this many particle-steps (capacity x substeps): the
-# fountain's frame of 10 substeps on the 2-core Xeon took 7.1 ns per particle-step serially and 9.5 in
-# parallel at 1e4 particles, 7.1 and 7.6 at 2e4, 6.3 and 5.7 at 5e4 (the thread pool's wake-up per
-# loop against a serial pass that plans births).
+# fountain's frame of 10 substeps on the 2-core Xeon took 7.0 ns per particle-step serially and 9.2 in
+# parallel at 1e4 particles, 6.4 and 5.6 at 3e4, 6.0 and 5.0 at 1e5, 6.1 and 4.1 at 1e6 (the serial
+# pass that plans births, and the thread pool's wake-up, do not shrink with a second core).
 SERIAL_BELOW = 300_000
 
 
@@ -143,6 +143,11 @@ class BlockedFrame:
                             next_free = ti.min(next_free, free)
                 self.word_bits[w] = bits
                 self.word_next[w] = next_free
+                live = model.live_particles() - (w << 5)
+                mask = ti.u32(0xFFFFFFFF)  # the live slots of this word: their bits are pass 3's to set
+                if live < 32:
+                    mask = (ti.u32(1) << ti.cast(live, ti.u32)) - ti.u32(1)
+                state.particle_free[w] &= ~mask
             # 2. The emitters' scans, substep after substep, in the order Stepper.step runs them.
             ti.loop_config(serialize=True)
             for _ in range(1):
@@ -163,21 +168,15 @@ class BlockedFrame:
                                 self,
                                 (k, e, times, steps, h, seed, step0),
                             )
-        # 3. Each particle through the frame, 32 per thread, which then writes their free bits.
+        # 3. Each particle through the frame. One particle per iteration, not a word: Taichi cuts a CPU
+        # loop into tasks of at least 512 iterations, and a loop over words left one thread idle up to
+        # ~5e5 particles. Pass 1 cleared the live slots' bits; the few slots free at the end set theirs.
         ti.loop_config(serialize=serial)
-        for w in range((model.live_particles() + 31) >> 5):
-            bits = ti.u32(0)
-            for b in range(32):
-                i = (w << 5) + b
-                if i < model.live_particles():
-                    if self.advance(model, state, method, i, times, ranges, steps, h, seed, step0):
-                        bits |= ti.u32(1) << ti.cast(b, ti.u32)
+        for i in range(model.live_particles()):
+            free = self.advance(model, state, method, i, times, ranges, steps, h, seed, step0)
             if ti.static(self.lifetimes):
-                live = model.live_particles() - (w << 5)
-                mask = ti.u32(0xFFFFFFFF)
-                if live < 32:
-                    mask = (ti.u32(1) << ti.cast(live, ti.u32)) - ti.u32(1)
-                state.particle_free[w] = (state.particle_free[w] & ~mask) | bits
+                if free:
+                    ti.atomic_or(state.particle_free[i >> 5], ti.u32(1) << ti.cast(i & 31, ti.u32))
 
     @ti.func
     def advance(
