@@ -32,12 +32,15 @@ import warnings
 
 import taichi as ti
 
-from .. import validate
-from ..runtime import data_oriented, serial_loops
+from .. import runtime, validate
+from ..runtime import data_oriented
 from .neighbors import make_neighbor_search
 from .response import project_spheres
 
 CONTACTS_KEPT = 16  # listed contacts per sphere: equal spheres touch at most 12 without deep overlap
+
+# Sphere contacts run their loops serially on the CPU up to this many spheres (see SphereContacts).
+SPHERE_SERIAL_UP_TO = 8192
 
 
 def accumulator_types():
@@ -170,9 +173,12 @@ class ContactSpheres:
         # the same kernels; the loops run to the neighbour structure's live size).
         n = model.particle_capacity
         make = model.new_field
-        # Small sphere counts are launch-bound on the CPU: a step is ~8 loops, each ~70 us more in
-        # parallel than serial here (benchmarks/results/realtime.md found 463 us per step at 62 spheres).
-        self._serial = serial_loops(n)
+        # Small sphere counts are launch-bound on the CPU: a step is ~8 loops, each ~70-130 us more in
+        # parallel than serial here (the second core waking up; benchmarks/results/step_breakdown.md).
+        # A sphere's contact work is ~300 ns a sweep, far more than a particle's update, so the contact
+        # loops go parallel from fewer elements than CPU_SERIAL_BELOW: on the 2-core Xeon 10^4 spheres
+        # stepped in 10 ms in parallel against 14 ms serially, 6,000 tied, 3,000 were faster serially.
+        self._serial = runtime.backend_name() == "cpu" and n <= SPHERE_SERIAL_UP_TO
         self.max_radius = model.max_radius
         self.min_radius = model.min_sphere_radius  # points (radius 0) may share the scene
         # A pair touches when |x_i - x_j| < r_i + r_j <= 2 r_max: cells of that size hold every contact.
