@@ -268,25 +268,29 @@ class Stepper:
         self._keep_good(state)
         method, model = self.integrator, self.model
         first = state.step_count
-        if mode == "blocked":
-            if self._blocked is None:
-                self._blocked = BlockedFrame(model, method)
-            self._blocked.run(state, h, n)
-            method.evaluations += method.stages * n
-            for _ in range(n):
-                state.time += h
-        elif mode == "serial_frame":
-            method._frame(model, state, state.time, h, n, first + 1)
-            method.evaluations += method.stages * n
-            for _ in range(n):
-                state.time += h
-        else:
-            x, v = state.particle_x, state.particle_v
-            for k in range(n):
-                t = state.time
-                method._final(model, state, x, v, x, v, t, t, h, first + k + 1, True)
-                state.time += h
-            method.evaluations += method.stages * n
+        try:
+            if mode == "blocked":
+                if self._blocked is None:
+                    self._blocked = BlockedFrame(model, method)
+                self._blocked.run(state, h, n)
+                method.evaluations += method.stages * n
+                for _ in range(n):
+                    state.time += h
+            elif mode == "serial_frame":
+                method._frame(model, state, state.time, h, n, first + 1)
+                method.evaluations += method.stages * n
+                for _ in range(n):
+                    state.time += h
+            else:
+                x, v = state.particle_x, state.particle_v
+                for k in range(n):
+                    t = state.time
+                    method._final(model, state, x, v, x, v, t, t, h, first + k + 1, True)
+                    state.time += h
+                method.evaluations += method.stages * n
+        except BaseException:  # Ctrl-C between a frame's launches: back to the frame's start, as step does
+            self._roll_back(state)
+            raise
         state.step_count += n
         every = method.check_every
         if (state.step_count // every) > (first // every):  # a multiple of check_every passed

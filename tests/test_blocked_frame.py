@@ -153,3 +153,28 @@ def test_blocked_frame_stops_at_the_step_that_diverged():
     assert abs(ref.step - first) <= 1 and ref.particle == 31 and ref.quantity == "speed"
     assert (got.step, got.particle, got.quantity) == (ref.step, ref.particle, ref.quantity)
     assert starts[0] == starts[1] == 20 * ((first - 1) // 20)  # the last checked good step
+
+
+def test_interrupted_blocked_frame_keeps_the_frame_start(monkeypatch):
+    """Ctrl-C between the launches of a long frame (150 substeps: three launches) under keep_last_good:
+    the state is the frame's start, bit for bit, emission carry and time included."""
+    model, state = _fountain(capacity=400, lifetime=0.05, jitter=0.2)
+    stepper = ta.make_integrator("symplectic_euler", policy={"keep_last_good": True}).stepper_for(model)
+    stepper.advance(state, 1e-3, 20)
+    before = {k: getattr(state, k).to_numpy() for k in ("particle_x", "particle_v", "particle_free")}
+    carry, t, steps = list(state.emit_carry), state.time, state.step_count
+    launch = stepper._blocked._launch
+    calls = []
+
+    def interrupted(*args):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return launch(*args)
+
+    monkeypatch.setattr(stepper._blocked, "_launch", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        stepper.advance(state, 1e-3, 150)
+    assert len(calls) == 2 and state.time == t and state.step_count == steps and state.emit_carry == carry
+    for k, want in before.items():
+        np.testing.assert_array_equal(getattr(state, k).to_numpy(), want)
