@@ -178,3 +178,22 @@ def test_interrupted_blocked_frame_keeps_the_frame_start(monkeypatch):
     assert len(calls) == 2 and state.time == t and state.step_count == steps and state.emit_carry == carry
     for k, want in before.items():
         np.testing.assert_array_equal(getattr(state, k).to_numpy(), want)
+
+
+def test_blocked_frames_are_the_same_on_one_and_two_threads():
+    """A pool large enough for the parallel launch (capacity x substeps above SERIAL_BELOW): the same
+    bits on one thread and on two (births planned serially, particles independent, bits set by OR)."""
+    from taichi_anim.integrators.blocked import SERIAL_BELOW
+
+    def run(threads):
+        ta.init("cpu", precision="f32", cpu_threads=threads)
+        model, state = _fountain(capacity=40_000, lifetime=0.02, jitter=0.3)
+        stepper = ta.make_integrator("symplectic_euler", check_every=10).stepper_for(model)
+        for _ in range(4):
+            stepper.advance(state, 1.0 / 600.0, 10)
+        assert model.particle_capacity * 10 >= SERIAL_BELOW
+        return [getattr(state, k).to_numpy() for k in ("particle_x", "particle_v", "particle_free")]
+
+    one, two = run(1), run(None)
+    for a, b in zip(one, two, strict=True):
+        np.testing.assert_array_equal(a, b)
