@@ -1,10 +1,11 @@
 """A frame of substeps in one launch for particles that do not act on each other (temporal blocking):
 each particle is loaded once, taken through every substep in registers and stored once, instead of one
-launch and one pass over memory per substep. Blocking a time loop over independent points is the
-"temporal blocking" of stencil codes (Wolf & Lam, "A data locality optimizing algorithm", PLDI 1991);
-here no halo is needed, because nothing couples two particles: the method is single-stage (`fusable`),
-the forces pointwise (no element terms), the colliders pure functions of (x, t), and no solver,
-attachment or trail acts between substeps (Stepper.frame_mode checks this).
+launch and one pass over memory per substep. It is the temporal blocking (time skewing) of stencil
+codes (Wonnacott, "Using time skewing to eliminate idle time due to memory bandwidth and network
+limitations", IPDPS 2000) in its simplest case: no halo is needed, because nothing couples two
+particles: the method is single-stage (`fusable`), the forces pointwise (no element terms), the
+colliders pure functions of (x, t), and no solver, attachment or trail acts between substeps
+(Stepper.frame_mode checks this).
 
 Emitters (particles/emitters.py) couple the slots through their free-slot scan: a step's births take the
 first free slots from a rotating cursor, and a slot is free from the step after its particle died. A
