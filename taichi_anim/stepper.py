@@ -215,8 +215,9 @@ class Stepper:
         each other: integrators/blocked.py);
         "serial_frame": one kernel runs every substep, serially (CPU, work below FRAME_SERIAL_BELOW);
         "launches": the method's kernel once per substep with nothing else in between; "steps": the
-        full step per substep (what the scene needs between substeps: emission, contacts, moving
-        meshes, trails, rollback, or a multi-stage method)."""
+        full step per substep (what the scene needs between substeps: contacts, moving meshes,
+        rollback, a multi-stage method; emission and trails where the particles are coupled or on a
+        GPU)."""
         if self._frame_mode is None:
             self._frame_mode = self._choose_frame_mode()
         return self._frame_mode
@@ -235,7 +236,7 @@ class Stepper:
                 ("emitters", model.emitter_count > 0 and not blockable_births),
                 *((s.name, True) for s in self.solvers),
                 ("colliders prepared per step", bool(model._prepared_colliders)),
-                ("trails", model.trail_length > 0),
+                ("trails", model.trail_length > 0 and not independent),
                 (
                     f"policy divergence={self.policy.divergence!r} (rollback per step)",
                     self._recovering,
@@ -265,7 +266,7 @@ class Stepper:
             self._guarded_dt = h
             self._recovery = None
         self.watchdog.arm(state, h * n)
-        self._keep_good(state)
+        self._keep_good(state, frame=True)
         method, model = self.integrator, self.model
         first = state.step_count
         try:
@@ -273,6 +274,8 @@ class Stepper:
                 if self._blocked is None:
                     self._blocked = BlockedFrame(model, method)
                 self._blocked.run(state, h, n)
+                if state.trail_length:
+                    state.trail_head = (state.trail_head + n) % state.trail_length
                 method.evaluations += method.stages * n
                 for _ in range(n):
                     state.time += h
@@ -317,11 +320,12 @@ class Stepper:
         for s in self.solvers:
             s.check(state)
 
-    def _keep_good(self, state, *, always: bool = False) -> None:
+    def _keep_good(self, state, *, always: bool = False, frame: bool = False) -> None:
         """Save `state` as the rollback point when it is at a checked step (a multiple of
         `check_every`, whose watch was read and found good), or when it is not the State saved last (its
-        first step here; `always`: every step, for the recovering policies). One copy kernel: positions,
-        velocities, lifetimes, emission and trails (State.save), a memcpy of the state's fields."""
+        first step here; `always`: every step, for the recovering policies; `frame`: before a fused frame,
+        whose substeps write several trail columns). One copy kernel: positions, velocities, lifetimes,
+        emission and trails (State.save), a memcpy of the state's fields."""
         if self._backup is None:
             return
         every = 1 if always else self.integrator.check_every
@@ -330,7 +334,7 @@ class Stepper:
             # With check_every > 1 several steps may pass before a rollback: every trail column is kept; so
             # does the first save of a state (the backup's columns were never written: a rollback within
             # the trail's length would put them back).
-            state.save(self._backup, whole_trail=every > 1 or saved is not state)
+            state.save(self._backup, whole_trail=every > 1 or frame or saved is not state)
             self._backup_of = weakref.ref(state)
 
     def _roll_back(self, state, error=None):

@@ -15,8 +15,12 @@ import taichi_anim as ta
 from .helpers import ulp_tolerance
 
 
-def _fountain(capacity: int, lifetime: float, jitter: float, *, emitters: int = 1, seed: int = 3):
+def _fountain(
+    capacity: int, lifetime: float, jitter: float, *, emitters: int = 1, seed: int = 3, trails: int = 0
+):
     b = ta.Builder()
+    if trails:
+        b.add_particle_trails(trails)
     for k in range(emitters):
         b.add_particle_emitter(
             capacity=capacity,
@@ -60,6 +64,8 @@ def _run(mode, h, frames, substeps, **scene):
         dict(capacity=300, lifetime=0.004, jitter=0.5),
         # Two emitters, the second asking for more than its pool holds.
         dict(capacity=200, lifetime=0.02, jitter=0.3, emitters=2),
+        # Trails of 7 columns (not a divisor of the 10 substeps): every substep's column, births included.
+        dict(capacity=300, lifetime=0.01, jitter=0.3, trails=7),
     ],
 )
 def test_blocked_frames_equal_step_by_step(scene):
@@ -80,7 +86,11 @@ def test_blocked_frames_equal_step_by_step(scene):
     death = ref.particle_death.to_numpy()
     np.testing.assert_allclose(got.particle_death.to_numpy(), death, rtol=0, atol=ulp_tolerance(1.0, 4))
     # The motion: 120 substeps of gravity, drag and the box, to round-off.
-    for name in ("particle_x", "particle_v"):
+    names = ["particle_x", "particle_v"]
+    if ref.trail_length:
+        assert got.trail_head == ref.trail_head == (frames * substeps) % ref.trail_length
+        names.append("trail")
+    for name in names:
         want = getattr(ref, name).to_numpy()[alive]
         tol = ulp_tolerance(np.abs(want).max(), 64 * frames * substeps)
         np.testing.assert_allclose(getattr(got, name).to_numpy()[alive], want, rtol=0, atol=tol)
@@ -157,12 +167,13 @@ def test_blocked_frame_stops_at_the_step_that_diverged():
 
 def test_interrupted_blocked_frame_keeps_the_frame_start(monkeypatch):
     """Ctrl-C between the launches of a long frame (150 substeps: three launches) under keep_last_good:
-    the state is the frame's start, bit for bit, emission carry and time included."""
-    model, state = _fountain(capacity=400, lifetime=0.05, jitter=0.2)
+    the state is the frame's start, bit for bit, emission carry, time and every trail column included
+    (the first launch wrote all five)."""
+    model, state = _fountain(capacity=400, lifetime=0.05, jitter=0.2, trails=5)
     stepper = ta.make_integrator("symplectic_euler", policy={"keep_last_good": True}).stepper_for(model)
     stepper.advance(state, 1e-3, 20)
-    before = {k: getattr(state, k).to_numpy() for k in ("particle_x", "particle_v", "particle_free")}
-    carry, t, steps = list(state.emit_carry), state.time, state.step_count
+    before = {k: getattr(state, k).to_numpy() for k in ("particle_x", "particle_v", "particle_free", "trail")}
+    carry, t, steps, head = list(state.emit_carry), state.time, state.step_count, state.trail_head
     launch = stepper._blocked._launch
     calls = []
 
@@ -176,6 +187,7 @@ def test_interrupted_blocked_frame_keeps_the_frame_start(monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         stepper.advance(state, 1e-3, 150)
     assert len(calls) == 2 and state.time == t and state.step_count == steps and state.emit_carry == carry
+    assert state.trail_head == head
     for k, want in before.items():
         np.testing.assert_array_equal(getattr(state, k).to_numpy(), want)
 

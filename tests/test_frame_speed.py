@@ -91,16 +91,19 @@ def test_frame_mode_is_chosen_by_size_and_needs():
     retry = ta.make_integrator("symplectic_euler", policy={"divergence": "retry"}).stepper_for(_sheet(8))
     assert retry.frame_mode()["mode"] == "steps" and "rollback" in retry.frame_mode()["reason"]
     # Particles that do not act on each other go through the frame one by one, emitters' births planned
-    # first (tests/test_blocked_frame.py); trails are recorded between substeps.
-    for trails, want in ((0, "blocked"), (4, "steps")):
+    # first and trails written per particle (tests/test_blocked_frame.py); sphere contacts act between
+    # substeps.
+    for contacts, want in ((False, "blocked"), (True, "steps")):
         b = ta.Builder()
         b.add_particle_emitter(capacity=64, rate=100.0)
+        b.add_particle_trails(4)
         b.add_force_gravity()
-        if trails:
-            b.add_particle_trails(trails)
+        if contacts:
+            b.add_particles([[0.0, 0.0, 0.0]], radius=0.01)
+            b.add_sphere_contacts()
         mode = ta.make_integrator("symplectic_euler").stepper_for(b.finalize()).frame_mode()
         assert mode["mode"] == want, mode
-    assert "trails" in mode["reason"]
+    assert "contacts" in mode["reason"]
 
 
 def test_fused_frame_stops_at_the_step_that_diverged():

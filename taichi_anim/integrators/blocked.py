@@ -4,8 +4,8 @@ launch and one pass over memory per substep. It is the temporal blocking (time s
 codes (Wonnacott, "Using time skewing to eliminate idle time due to memory bandwidth and network
 limitations", IPDPS 2000) in its simplest case: no halo is needed, because nothing couples two
 particles: the method is single-stage (`fusable`), the forces pointwise (no element terms), the
-colliders pure functions of (x, t), and no solver, attachment or trail acts between substeps
-(Stepper.frame_mode checks this).
+colliders pure functions of (x, t), and no solver or attachment acts between substeps (Stepper.frame_mode
+checks this). Trails are per particle: each writes the column of every substep, as the step would.
 
 Emitters (particles/emitters.py) couple the slots through their free-slot scan: a step's births take the
 first free slots from a rotating cursor, and a slot is free from the step after its particle died. A
@@ -104,6 +104,7 @@ class BlockedFrame:
                 h,
                 model.seed,
                 state.step_count + first,
+                state.trail_head + first,
             )
             first = end
 
@@ -121,6 +122,7 @@ class BlockedFrame:
         h: float,
         seed: ti.u32,
         step0: ti.i32,
+        head: ti.i32,
     ):
         if ti.static(self.lifetimes):
             # 1. The substep each slot is free from, and per word of 32 slots the bits free at the start
@@ -174,7 +176,7 @@ class BlockedFrame:
         # ~5e5 particles. Pass 1 cleared the live slots' bits; the few slots free at the end set theirs.
         ti.loop_config(serialize=serial)
         for i in range(model.live_particles()):
-            free = self.advance(model, state, method, i, times, ranges, steps, h, seed, step0)
+            free = self.advance(model, state, method, i, times, ranges, steps, h, seed, step0, head)
             if ti.static(self.lifetimes):
                 if free:
                     ti.atomic_or(state.particle_free[i >> 5], ti.u32(1) << ti.cast(i & 31, ti.u32))
@@ -192,9 +194,11 @@ class BlockedFrame:
         h,
         seed,
         step0,
+        head,
     ):
-        """Particle i through `steps` substeps (born on the way where its chain says); returns whether
-        its slot ends the launch free."""
+        """Particle i through `steps` substeps (born on the way where its chain says), its trail column
+        head + k written after substep k as State.record_trails does; returns whether its slot ends the
+        launch free."""
         x = state.particle_x[i]
         v = state.particle_v[i]
         lim = watch_limits(state)
@@ -213,9 +217,13 @@ class BlockedFrame:
                             x, v, life = e._sample(seed, ti.cast(step0 + k, ti.u32), j)
                             birth = t
                             death = t + life
+                            if ti.static(state.trail_length > 0):  # a new particle's trail starts at birth
+                                for c in range(state.trail_length):
+                                    state.trail[i, c] = x
                     m = self.birth_next[m]
                 if death > t:  # alive at the step's start (Integrator._final)
                     x, v = self.substep(model, state, method, i, x, v, t, h, step0 + k + 1, lim)
+                self.record_trail(state, i, x, head + k)
             state.particle_birth[i] = birth
             state.particle_death[i] = death
             free = self.free_from[i] <= steps
@@ -224,9 +232,15 @@ class BlockedFrame:
                 x, v = self.substep(
                     model, state, method, i, x, v, ti.cast(times[k], float), h, step0 + k + 1, lim
                 )
+                self.record_trail(state, i, x, head + k)
         state.particle_x[i] = x
         state.particle_v[i] = v
         return free
+
+    @ti.func
+    def record_trail(self, state: ti.template(), i, x, column):
+        if ti.static(state.trail_length > 0):
+            state.trail[i, column % state.trail_length] = x
 
     @ti.func
     def substep(
