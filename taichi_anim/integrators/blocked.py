@@ -26,7 +26,6 @@ import taichi as ti
 
 from .. import runtime
 from ..finish import finished
-from ..rng import uniform
 from ..runtime import compile_with, data_oriented, np_float
 from ..watchdog import watch_limits
 
@@ -292,7 +291,7 @@ class BlockedFrame:
     @ti.func
     def take(self, state: ti.template(), slot, found, start, ctx: ti.template()):
         """Record the birth in `slot` at substep k as the found-th of the step's batch, and when the new
-        particle's slot is free again (its lifetime: Emitter._sample's draw 6, the same hash)."""
+        particle's slot is free again (its lifetime: Emitter.lifetime_of, _sample's own draw)."""
         # ctx = (k, emitter, times, steps, h, seed, step0), read in place (an array cannot be assigned).
         k = ctx[0]
         m = self.birth_count[None]
@@ -305,8 +304,8 @@ class BlockedFrame:
         else:
             self.birth_next[self.birth_tail[slot]] = m
         self.birth_tail[slot] = m
-        draw = uniform(ctx[5], ti.cast(ctx[6] + k, ti.u32), ti.cast(start + found, ti.u32), ti.u32(6))
-        death = ti.cast(ctx[2][k], float) + ctx[1].life(draw)
+        life = ctx[1].lifetime_of(ctx[5], ti.cast(ctx[6] + k, ti.u32), ti.cast(start + found, ti.u32))
+        death = ti.cast(ctx[2][k], float) + life
         free = self.free_step(death, ctx[2], k, ctx[3], ctx[4])
         self.free_from[slot] = free
         w = slot >> 5

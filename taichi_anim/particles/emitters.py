@@ -237,6 +237,12 @@ class Emitter:
         return self.s.lifetime * (1.0 + self.s.lifetime_jitter * (2.0 * u - 1.0))
 
     @ti.func
+    def lifetime_of(self, seed, step, j):
+        """The lifetime [s] `_sample(seed, step, j)` gives, without drawing the rest (a blocked frame's
+        plan of births, integrators/blocked.py)."""
+        return self.life(uniform(seed, step, j, ti.u32(6)))
+
+    @ti.func
     def _spawn_one(self, state: ti.template(), start, j, t, seed, step):
         i = state.emit_slot[start + j]
         x, v, life = self._sample(seed, step, ti.cast(start + j, ti.u32))
