@@ -147,14 +147,16 @@ def median_time(fn: Callable[[], object], *, repeats: int = 5, warmup: int = 1, 
     return statistics.median(times)
 
 
-def compile_times(first_and_steady: Callable[[], tuple[float, float]], *, precision: str = "f32") -> dict:
+def compile_times(
+    first_and_steady: Callable[[], tuple[float, float]], *, precision: str = "f32", arch: str = "cpu"
+) -> dict:
     """Compile = first run - steady run of a scene, in a fresh ta.init with the offline cache on an empty
     folder (cold) and again on that folder (warm), so nothing depends on what ~/.cache/taichi holds."""
     folder = tempfile.mkdtemp(prefix="taichi_anim_bench_cache_")
     out = {}
     try:
         for mode in ("cold", "warm"):
-            init(precision, offline_cache=True, offline_cache_file_path=folder)
+            init(precision, arch, offline_cache=True, offline_cache_file_path=folder)
             first, steady = first_and_steady()
             out[mode] = {"first": first, "steady": steady, "compile": max(first - steady, 0.0)}
     finally:

@@ -11,7 +11,11 @@ particle-step: the per-step path moves x, v read and written and the death time 
 frame about 80 B per particle per frame (x, v, birth, death read and written, its scratch), 8 B per
 particle-step; both against a NumPy copy's bandwidth.
 
-    .venv/bin/python benchmarks/particles.py [--quick]
+    .venv/bin/python benchmarks/particles.py [--quick] [--arch cuda]
+
+With `--arch cuda` ours runs on the GPU (page `particles_cuda`); NumPy stays on the host's one core. A
+frame with emitters is blocked on the CPU only (integrators/blocked.py), so on CUDA both of our rows take
+the per-step path.
 """
 
 import math
@@ -55,8 +59,8 @@ def build(n: int):
     return model, model.state(), ta.make_integrator("symplectic_euler", check_every=STEPS)
 
 
-def ours(n: int, alive: list, per_step: bool = False):
-    init("f32")
+def ours(n: int, alive: list, per_step: bool = False, arch: str = "cpu"):
+    init("f32", arch)
     model, state, integ = build(n)
     stepper = integ.stepper_for(model)
 
@@ -141,7 +145,10 @@ def copy_bandwidth(nbytes: int = 2**29) -> float:
 
 
 def main(argv=None) -> None:
-    args = parse_args(__doc__, argv)
+    args = parse_args(
+        __doc__, argv, lambda p: p.add_argument("--arch", choices=("cpu", "cuda"), default="cpu")
+    )
+    arch = args.arch
     sizes, frames = ([10**4, 10**5], 5) if args.quick else ([10**4, 10**5, 10**6, 10**7], 30)
     bw = copy_bandwidth(2**26 if args.quick else 2**29)
     log(f"copy bandwidth {bw:.1f} GB/s")
@@ -156,12 +163,16 @@ def main(argv=None) -> None:
         stepper.advance(state, DT, STEPS)
         return first, clock() - a
 
-    comp = compile_times(compile_run)
+    comp = compile_times(compile_run, arch=arch)
     rows, data = [], []
     for n in sizes:
         log(f"{n:.0e} particles")
         res = {}
-        engines = (("taichi_anim", ours), ("per step", lambda n, a: ours(n, a, True)), ("numpy", numpy_peer))
+        engines = (
+            ("taichi_anim", lambda n, a: ours(n, a, False, arch)),
+            ("per step", lambda n, a: ours(n, a, True, arch)),
+            ("numpy", numpy_peer),
+        )
         for name, make in engines:
             alive: list = []
             r = time_run(
@@ -179,10 +190,11 @@ def main(argv=None) -> None:
         rows[-1] += [f"{gbs:.1f}", f"{gbs / bw:.2f}", f"{step_gbs / bw:.2f}", f"{t['cores']:.2f}"]
         data.append({"n": n, **res})
     page = Page(
-        "particles",
-        "Particle step: taichi_anim against NumPy",
+        "particles" + ("_cuda" if arch == "cuda" else ""),
+        "Particle step: taichi_anim against NumPy" + (" (taichi_anim on CUDA)" if arch == "cuda" else ""),
         args,
         {
+            "arch": f"taichi_anim {arch}; NumPy on one host core",
             "scene": "disc emitter (pool N, lifetime 0.5 s +-20 %), gravity, box (restitution 0.5)",
             "step": f"symplectic Euler, dt 1/600 s, {STEPS} steps a frame, f32, after {FILL_FRAMES} frames",
             "taichi_anim": f"Stepper.advance(state, dt, {STEPS}): one blocked launch per frame",

@@ -9,7 +9,10 @@ steps (60 with --quick) so the timed steps, of both sides, start from the same p
 Reported: particle-steps/s, the neighbour rebuild's share of our step, and the piles' kinetic energy and
 largest overlap after the same steps (summation order differs: they agree statistically).
 
-    .venv/bin/python benchmarks/spheres.py [--quick]
+    .venv/bin/python benchmarks/spheres.py [--quick] [--arch cuda]
+
+With `--arch cuda` both sides run on the GPU (ours `ta.init("cuda")`, Warp's kernels on device "cuda"),
+page `spheres_cuda`.
 """
 
 import math
@@ -43,8 +46,8 @@ def build(x, v, lo, hi, method="auto"):
     return model, model.state(), integ
 
 
-def settle(n: int, steps: int) -> dict:
-    init("f32")
+def settle(n: int, steps: int, arch: str) -> dict:
+    init("f32", arch)
     x, lo, hi = lattice(n)
     model, state, integ = build(x, None, lo, hi)
     for _ in range(steps):
@@ -59,8 +62,8 @@ def settle(n: int, steps: int) -> dict:
     }
 
 
-def ours(start: dict, steps: int, method: str, share: dict):
-    init("f32")
+def ours(start: dict, steps: int, method: str, share: dict, arch: str = "cpu"):
+    init("f32", arch)
     model, state, integ = build(start["x"], start["v"], start["lo"], start["hi"], method)
     contacts = integ.stepper_for(model).contacts
     share["search"] = contacts.neighbors.describe()
@@ -83,7 +86,7 @@ def ours(start: dict, steps: int, method: str, share: dict):
     return frame
 
 
-def warp(ws, start: dict, steps: int, sim_overlap: list):
+def warp(ws, start: dict, steps: int, sim_overlap: list, device: str = "cpu"):
     sim = ws.WarpSpheres(
         start["x"],
         start["v"],
@@ -95,6 +98,7 @@ def warp(ws, start: dict, steps: int, sim_overlap: list):
         wall_restitution=0.5,
         wall_friction=0.3,
         relaxation=start["relax"],
+        device=device,
         **CONTACT,
     )
 
@@ -119,25 +123,28 @@ def pile(result, overlap: float) -> str:
 
 
 def main(argv=None) -> None:
-    args = parse_args(__doc__, argv)
+    args = parse_args(
+        __doc__, argv, lambda p: p.add_argument("--arch", choices=("cpu", "cuda"), default="cpu")
+    )
+    arch = args.arch
     plan = [(10**4, 10), (10**5, 3)] if args.quick else [(10**4, 50), (10**5, 10), (10**6, 3)]
     frames = 3 if args.quick else 7
     ws = peer("warp_spheres")
     rows, data = [], []
     for n, steps in plan:
         log(f"{n:.0e} spheres, frames of {steps} steps")
-        start = settle(n, 60 if args.quick else SETTLE)
+        start = settle(n, 60 if args.quick else SETTLE, arch)
         share: dict = {}
         warp_overlap: list = []
         runs = []
         if n <= 10**4:  # brute force: frames of one step (it is ~100x slower); first, as each ta.init
-            runs.append(Run("brute force", lambda s=start: ours(s, 1, "brute", {})))  # frees the last
-        runs.append(Run("taichi_anim", lambda s=start, k=steps, sh=share: ours(s, k, "auto", sh)))
+            runs.append(Run("brute force", lambda s=start: ours(s, 1, "brute", {}, arch)))  # frees the last
+        runs.append(Run("taichi_anim", lambda s=start, k=steps, sh=share: ours(s, k, "auto", sh, arch)))
         if ws is not None:
             runs.append(
                 Run(
                     "warp HashGrid",
-                    lambda s=start, k=steps, o=warp_overlap: warp(ws, s, k, o),
+                    lambda s=start, k=steps, o=warp_overlap: warp(ws, s, k, o, arch),
                     sync=host_clock,
                 )
             )
@@ -162,14 +169,16 @@ def main(argv=None) -> None:
             {"n": n, "steps": steps, "runs": res, "search": share["search"], "rebuild_share": rebuild}
         )
     page = Page(
-        "spheres",
-        "Hard spheres against Warp's HashGrid",
+        "spheres" + ("_cuda" if arch == "cuda" else ""),
+        "Hard spheres against Warp's HashGrid" + (" (CUDA, both sides)" if arch == "cuda" else ""),
         args,
         {
             "scene": "jittered lattice (spacing 2.2 r) collapsing in a box, r = 0.01 m, 0.01 kg, gravity",
             "contacts": f"{CONTACT}, walls restitution 0.5 friction 0.3, relaxation: the engine's",
             "step": f"symplectic Euler dt = 1/600 s, f32, after {SETTLE} settling steps, {frames} frames",
-            "threads": "taichi_anim: Taichi's default (all cores); Warp: one thread (its CPU kernels)",
+            "threads": "CUDA, both sides"
+            if arch == "cuda"
+            else "taichi_anim: Taichi's default (all cores); Warp: one thread (its CPU kernels)",
         },
     )
     page.table(
