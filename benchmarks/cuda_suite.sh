@@ -27,15 +27,15 @@ nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv >"$out/gpu.
 cat "$out/gpu.txt"
 for s in $stages; do
   case $s in
-  tests) stage tests 330 "$py" -m pytest -q -m gpu -p no:cacheprovider tests/test_backends.py ;;
-  particles) stage particles 240 "$py" benchmarks/particles.py --arch cuda --out "$out" ;;
+  tests) stage tests 240 "$py" -m pytest -q -m gpu -p no:cacheprovider tests/test_backends.py ;;
+  particles) stage particles 150 "$py" benchmarks/particles.py --arch cuda --out "$out" ;;
   demos)
     for d in fountain cloth; do
-      stage "demo_$d" 120 "$py" -m taichi_anim demo "$d" --arch cuda --frames 120 --no-export
+      stage "demo_$d" 60 "$py" -m taichi_anim demo "$d" --arch cuda --frames 120 --no-export
     done
     ;;
-  cloth) stage cloth 180 "$py" benchmarks/cloth_warp.py --arch cuda --out "$out" ;;
-  spheres) stage spheres 240 "$py" benchmarks/spheres.py --arch cuda --out "$out" ;;
+  cloth) stage cloth 120 "$py" benchmarks/cloth_warp.py --arch cuda --out "$out" ;;
+  spheres) stage spheres 150 "$py" benchmarks/spheres.py --arch cuda --out "$out" ;;
   *) echo "unknown stage $s" ;;
   esac
 done
