@@ -46,7 +46,7 @@ def build(x, v, lo, hi, method="auto"):
     return model, model.state(), integ
 
 
-def settle(n: int, steps: int, arch: str) -> dict:
+def settle(n: int, steps: int, arch: str = "cpu") -> dict:
     init("f32", arch)
     x, lo, hi = lattice(n)
     model, state, integ = build(x, None, lo, hi)

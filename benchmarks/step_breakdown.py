@@ -12,7 +12,11 @@ then with it for the split (the profiler adds its own cost to every launch). Tai
 offloaded tasks `<kernel>_c<id>_<n>_kernel_<k>_<range_for|serial|...>`: records ending in
 `_kernel_0_...` count the launches, the others the extra tasks a kernel with several top-level loops has.
 
-    .venv/bin/python benchmarks/step_breakdown.py [--quick]
+    .venv/bin/python benchmarks/step_breakdown.py [--quick] [--arch cuda]
+
+With `--arch cuda` the scenes run on the GPU (page `step_breakdown_cuda`): particles at 10^5 and 10^7,
+spheres at 10^5 and 10^6, the cloth at every size, about 1 s of frames per mode; the kernel profiler
+then times each task on the device.
 """
 
 import math
@@ -132,12 +136,12 @@ def frame_times(frame, frames: int) -> list[float]:
     return times
 
 
-def run_size(make, budget_s: float, frames: dict | None = None) -> dict:
+def run_size(make, budget_s: float, frames: dict | None = None, arch: str = "cpu") -> dict:
     """Build in a fresh init (the profiler on when `frames` is given: the unprofiled run chose them),
     warm up, then per mode: one untimed frame (its compile), one to size the run to budget_s, the
     timed frames (the profiled run takes the sizing frame too, so both runs time the same frames)."""
     profiled = frames is not None
-    init("f32", kernel_profiler=profiled)
+    init("f32", arch, kernel_profiler=profiled)
     case = make()
     first = next(iter(case.modes.values()))
     for _ in range(case.warmup):
@@ -156,10 +160,10 @@ def run_size(make, budget_s: float, frames: dict | None = None) -> dict:
     return {"modes": out, "info": case.info(), "elements": case.elements}
 
 
-def measure(scene: str, n: int, make, budget_s: float) -> list[dict]:
+def measure(scene: str, n: int, make, budget_s: float, arch: str = "cpu") -> list[dict]:
     log(f"{scene} {n}")
-    plain = run_size(make, budget_s)
-    prof = run_size(make, budget_s, {m: r["frames"] for m, r in plain["modes"].items()})
+    plain = run_size(make, budget_s, arch=arch)
+    prof = run_size(make, budget_s, {m: r["frames"] for m, r in plain["modes"].items()}, arch)
     rows = []
     for mode, r in prof["modes"].items():
         wall = plain["modes"][mode]["wall_ms"]
@@ -175,11 +179,11 @@ def median_launch(kernel, repeats: int) -> float:
     return 1e6 * statistics.median(frame_times(kernel, repeats))
 
 
-def launch_costs(profiled: bool, repeats: int) -> dict:
+def launch_costs(profiled: bool, repeats: int, arch: str = "cpu") -> dict:
     """Median µs of (launch, ti.sync) for an empty serial kernel and a 2-iteration parallel loop (the
     thread pool waking for almost no work), and of ti.sync alone; with the profiler, also the task
     time it records for each (is the pool's wake-up inside a task's time?)."""
-    init("f32", kernel_profiler=profiled)
+    init("f32", arch, kernel_profiler=profiled)
     flag = ti.field(ti.i32, shape=2)
 
     @ti.kernel
@@ -278,10 +282,10 @@ def task_table(page: Page, r: dict, top: int = 8) -> None:
     )
 
 
-def measure_all(sizes: dict, quick: bool, budget: float) -> tuple[list, float | None, int | None]:
+def measure_all(sizes: dict, quick: bool, budget: float, arch: str) -> tuple[list, float | None, int | None]:
     rows = []
     for n in sizes["particles"]:
-        rows += measure("particles", n, lambda n=n: particle_case(n), budget)
+        rows += measure("particles", n, lambda n=n: particle_case(n), budget, arch)
     wc = peer("warp_cloth")
     dt = substeps = None
     if wc is not None:  # Warp's scene: without warp-lang the cloth rows are left out
@@ -289,10 +293,11 @@ def measure_all(sizes: dict, quick: bool, budget: float) -> tuple[list, float | 
         dt, substeps = float(consts["sim_dt"]), int(consts["sim_substeps"])
         for dim in sizes["cloth"]:
             cloth = wc.make_cloth(dim)
-            rows += measure("cloth", dim, lambda c=cloth: cloth_case(wc.fresh(c), dt, substeps), budget)
+            make = lambda c=cloth: cloth_case(wc.fresh(c), dt, substeps)  # noqa: E731
+            rows += measure("cloth", dim, make, budget, arch)
     for n in sizes["spheres"]:
-        start = spheres.settle(n, 60 if quick else spheres.SETTLE)
-        rows += measure("spheres", n, lambda s=start, n=n: sphere_case(s, SPHERE_STEPS[n]), budget)
+        start = spheres.settle(n, 60 if quick else spheres.SETTLE, arch)
+        rows += measure("spheres", n, lambda s=start, n=n: sphere_case(s, SPHERE_STEPS[n]), budget, arch)
     return rows, dt, substeps
 
 
@@ -324,21 +329,28 @@ def settings(sizes, budget, threads, bandwidth, dt, substeps) -> dict:
 
 
 def main(argv=None) -> None:
-    args = parse_args(__doc__, argv)
-    quick, budget, repeats = args.quick, 0.5 if args.quick else 3.0, 500 if args.quick else 2000
+    args = parse_args(
+        __doc__, argv, lambda p: p.add_argument("--arch", choices=("cpu", "cuda"), default="cpu")
+    )
+    arch, gpu = args.arch, args.arch != "cpu"
+    quick, budget, repeats = (
+        args.quick,
+        0.5 if args.quick else (1.0 if gpu else 3.0),
+        500 if args.quick else 2000,
+    )
     sizes = {
-        "particles": [10**4, 10**5] if quick else [10**4, 10**5, 10**6, 10**7],
+        "particles": [10**4, 10**5] if quick else ([10**5, 10**7] if gpu else [10**4, 10**5, 10**6, 10**7]),
         "cloth": list(cloth_warp.QUICK_SIZES if quick else cloth_warp.SIZES),
-        "spheres": [10**4] if quick else [10**4, 10**5, 10**6],
+        "spheres": [10**4] if quick else ([10**5, 10**6] if gpu else [10**4, 10**5, 10**6]),
     }
     bandwidth = particles.copy_bandwidth(2**26 if quick else 2**29)
     log(f"copy bandwidth {bandwidth:.1f} GB/s")
-    launch = {"plain": launch_costs(False, repeats), "profiled": launch_costs(True, repeats)}
-    threads = impl.current_cfg().cpu_max_num_threads
-    rows, dt, substeps = measure_all(sizes, quick, budget)
+    launch = {"plain": launch_costs(False, repeats, arch), "profiled": launch_costs(True, repeats, arch)}
+    threads = impl.current_cfg().cpu_max_num_threads if not gpu else arch
+    rows, dt, substeps = measure_all(sizes, quick, budget, arch)
 
     page = Page(
-        "step_breakdown",
+        "step_breakdown" + ("_cuda" if gpu else ""),
         "Where a frame's time goes: kernels, memory, launches, host",
         args,
         settings(sizes, budget, threads, bandwidth, dt, substeps),

@@ -47,13 +47,16 @@ def test_gpu_backend_matches_cpu(arch):
     assert close.mean() > 0.99, close.mean()
 
 
-def sphere_pile(arch: str, method: str):
-    """Positions while the column falls (6 frames) and (largest overlap, contacts) once it has landed."""
+def sphere_pile(arch: str, method: str, nudge: bool = False):
+    """Positions while the column falls (6 frames) and (largest overlap, contacts) once it has landed;
+    `nudge` moves every start position up by one float32 ulp (the precision's own spread)."""
     ta.init(arch, precision="f32")
     scene = make_scene("spheres", particles=4000, seed=1)
     b = ta.Builder()  # the same spheres with the neighbour structure under test
     b.add_force_gravity()
-    x0 = scene.state.positions()
+    x0 = scene.state.positions().astype(np.float32)
+    if nudge:
+        x0 = np.nextafter(x0, np.float32(np.inf))
     v0 = scene.state.velocities()
     b.add_particles(x0, v0, mass=1e-3, radius=scene.options["radius"])
     b.add_collider_box(*scene.bounds, restitution=0.3, friction=0.4)
@@ -75,15 +78,23 @@ def sphere_pile(arch: str, method: str):
 def test_gpu_sphere_contacts_match_cpu(arch, method):
     """The counting sort (block scan, per-cell sort) and the contact sweeps run on the GPU backends: the
     column falls the same way, and once it has landed (the splash makes the motion chaotic) it has as
-    many contacts and small overlaps."""
+    many contacts and small overlaps.
+
+    "The same way" is measured against the precision: the CPU run started one ulp higher gives the
+    spread that rounding alone makes over these 1,440 steps of a pile in contact (about 89 % of the
+    spheres within 1 mm on the CPU here; the GPU runs gave 92-95 % on an H200). A GPU result no
+    further from the CPU's than that, less 5 points, passes; a race or a wrong sum moves far more."""
     try:
         ta.init(arch)
     except RuntimeError as e:
         pytest.skip(f"{arch} not available here: {e}")
     x_gpu, (overlap_gpu, contacts_gpu) = sphere_pile(arch, method)
     x_cpu, (overlap_cpu, contacts_cpu) = sphere_pile("cpu", method)
-    close = np.linalg.norm(x_gpu - x_cpu, axis=1) < 1e-3
-    assert close.mean() > 0.95, close.mean()
+    x_ulp, _ = sphere_pile("cpu", method, nudge=True)
+    spread = (np.linalg.norm(x_ulp - x_cpu, axis=1) < 1e-3).mean()
+    close = (np.linalg.norm(x_gpu - x_cpu, axis=1) < 1e-3).mean()
+    assert spread > 0.8, spread  # the pile is still falling: the comparison means something
+    assert close > spread - 0.05, (close, spread)
     assert contacts_cpu > 1000  # the column has landed
     assert overlap_gpu < 0.25 * 0.006 and abs(contacts_gpu - contacts_cpu) < 0.1 * contacts_cpu
 

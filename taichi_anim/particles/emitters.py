@@ -5,9 +5,10 @@ Per step: `n = floor(rate * dt + carry)` new particles (the fraction carries ove
 exact and deterministic). Dead slots carry a bit in `State.particle_free` (set by the integrator's
 last kernel with an integer atomic, so the result does not depend on thread order). A single-threaded
 kernel scans those bits, 32 slots per word, from a rotating cursor and takes the first `n` free slots
-(deterministic; a full pool with scattered deaths costs N/32 word reads, not N death times), then a
-parallel kernel draws each new particle's position, velocity and lifetime from counter-based hashes
-(same seed, same particles, whatever the thread count).
+(deterministic; a full pool with scattered deaths costs N/32 word reads, not N death times; on GPU
+backends the same slots come from parallel passes, slot_scan.py), then a parallel kernel draws each
+new particle's position, velocity and lifetime from counter-based hashes (same seed, same particles,
+whatever the thread count).
 """
 
 import math
@@ -18,7 +19,8 @@ import taichi as ti
 
 from .. import capacity, validate
 from ..rng import uniform
-from ..runtime import data_oriented, serial_loops
+from ..runtime import backend_name, data_oriented, serial_loops
+from .slot_scan import ParallelSlotScan, bit_index
 
 
 class EmitterShape(Enum):
@@ -67,23 +69,6 @@ def _basis(direction):
     return u, w
 
 
-@ti.func
-def _bit_index(low: ti.u32) -> ti.i32:
-    """Index of the single set bit of `low` (portable: clz of the sign bit differs on Vulkan)."""
-    b = 0
-    if low & ti.u32(0xFFFF0000):
-        b += 16
-    if low & ti.u32(0xFF00FF00):
-        b += 8
-    if low & ti.u32(0xF0F0F0F0):
-        b += 4
-    if low & ti.u32(0xCCCCCCCC):
-        b += 2
-    if low & ti.u32(0xAAAAAAAA):
-        b += 1
-    return b
-
-
 @data_oriented
 class Emitter:
     """Emits into slots [start, start + capacity) of the particle pool."""
@@ -103,6 +88,10 @@ class Emitter:
         self.mask_hi = 0xFFFFFFFF >> (31 - ((end - 1) & 31))
         # Under capacity buckets the choice goes by the bucket, so that every size compiles one kernel.
         self.serial = serial_loops(capacity.bucket(self.capacity) if capacity.enabled() else self.capacity)
+        # One GPU thread walking the bits is the whole step's time at 10^7 slots: GPUs scan in parallel
+        # passes (made at the first emission, so that a test can choose it on the CPU too).
+        self.parallel_scan = backend_name() != "cpu"
+        self._slot_scan = None
 
     def settings(self) -> dict:
         d = asdict(self.s)
@@ -128,7 +117,12 @@ class Emitter:
         n = self.plan(state, dt)
         if n == 0:
             return
-        self._emit(state, n, t, seed, step, *self.slot_range())
+        if self.parallel_scan:
+            if self._slot_scan is None:
+                self._slot_scan = ParallelSlotScan(self.capacity)
+            self._emit_parallel(state, n, t, seed, step, *self.slot_range())
+        else:
+            self._emit(state, n, t, seed, step, *self.slot_range())
 
     @ti.kernel
     def _emit(
@@ -151,6 +145,25 @@ class Emitter:
                 state, n, start, word_lo, word_hi, mask_lo, mask_hi, self, 0
             )
         ti.loop_config(serialize=self.serial)
+        for j in range(state.emit_found[self.index]):
+            self._spawn_one(state, start, j, t, seed, step)
+
+    @ti.kernel
+    def _emit_parallel(
+        self,
+        state: ti.template(),
+        n: ti.i32,
+        t: float,
+        seed: ti.u32,
+        step: ti.u32,
+        start: ti.i32,
+        word_lo: ti.i32,
+        word_hi: ti.i32,
+        mask_lo: ti.u32,
+        mask_hi: ti.u32,
+    ):
+        # One launch: the scan's parallel passes (slot_scan.py), then the spawn.
+        self._slot_scan.take(state, self.index, n, start, word_lo, word_hi, mask_lo, mask_hi)
         for j in range(state.emit_found[self.index]):
             self._spawn_one(state, start, j, t, seed, step)
 
@@ -185,7 +198,7 @@ class Emitter:
             bits = slots.free_bits(state, w, ctx) & mask
             while bits != 0 and found < n:
                 low = bits & (~bits + ti.u32(1))  # lowest set bit
-                slots.take(state, w * 32 + _bit_index(low), found, start, ctx)
+                slots.take(state, w * 32 + bit_index(low), found, start, ctx)
                 found += 1
                 bits ^= low
             if found < n:  # this word is used up: move on (else more may be free here)
