@@ -318,3 +318,42 @@ def test_dense_random_pile_conserves_momentum_for_any_number_of_sweeps(iteration
     assert most > 16  # the cells fallback ran too
     moved = np.abs(state.positions() - x - 0.02 * v).max()
     assert moved > 0.01  # the contacts really moved the spheres
+
+
+def test_near_lists_and_the_cells_agree(monkeypatch):
+    """Later sweeps walk each sphere's near list (candidates within r_i + r_j + a margin in the
+    prediction) while no pair can have closed the margin, else its cells: the same pairs in the same
+    order, so the same motion to round-off (the loops are compiled with different fused multiply-adds),
+    both in a pile settling (lists used: the sweeps drift less than the margin) and from deep overlaps
+    (the first sweeps move spheres past the margin: cells used)."""
+    from taichi_anim.collision.spheres import ContactSpheres
+
+    r = 0.01
+    x, v, box = pile(10, 5, r, seed=11)
+    deep = x.copy()
+    deep[1::2] = x[0::2] + [0.3 * r, 0.0, 0.0]  # sphere pairs 0.3 r apart: overlaps of 1.7 r
+
+    def result(start, use_lists):
+        ta.init("cpu", precision="f64")
+        monkeypatch.setattr(ContactSpheres, "use_near_lists", use_lists)
+        model, state = spheres(
+            start, v, radius=r, gravity=True, box=box, neighbor_search="grid", iterations=4
+        )
+        integ = ta.make_integrator("symplectic_euler")
+        drift = []
+        for _ in range(60):  # a chaotic pile: later, round-off differences grow past the tolerance
+            integ.step(model, state, 1 / 1200)
+            drift.append(float(integ.stepper_for(model).contacts.drift[None]))
+        return state.positions(), state.velocities(), np.array(drift)
+
+    for start in (x, deep):
+        xl, vl, drift = result(start, True)
+        xc, vc, _ = result(start, False)
+        assert np.abs(xl - xc).max() < 1e-11
+        assert np.abs(vl - vc).max() < 1e-9
+        assert np.abs(xl - start).max() > r
+        margin = 0.45 * 0.5 * r  # a sphere's own drift + the largest < 0.9 x NEAR_MARGIN x r
+        if start is x:
+            assert (drift < margin).mean() > 0.9  # the lists served most steps
+        else:
+            assert drift[0] > margin  # the first step's sweeps went past the margin: cells

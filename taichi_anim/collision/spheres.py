@@ -23,7 +23,12 @@ on x*, lists each sphere's contacts in x* (and counts them), and runs, in cell o
    al., "Detailed Rigid Body Simulation with Extended Position Based Dynamics", 2020, sec. 3.6); each
    pair's change is divided by the larger of its two spheres' counts of such pairs (symmetric, as in 1).
 A single pair is solved exactly (a mean of one). Candidate pairs come from the cells around each sphere's
-position in x* (the same cells for both spheres of a pair, so both see the pair or neither does). Sweeps
+position in x* (the same cells for both spheres of a pair, so both see the pair or neither does). The
+count pass also lists each sphere's candidates within r_i + r_j + margin in x* (Verlet's neighbour list
+with a skin, Verlet 1967, applied within one step): a later sweep walks that list instead of the 27
+cells while no two spheres can have closed the margin, |x_i - x_i*| + max_j |x_j - x_j*| < margin,
+which the sweeps track. It holds every pair the cells would give that can overlap, in the cells'
+order, so the sums are the same bits. Sweeps
 gather into ping-pong buffers: no float atomics, so a seed gives the same result at any thread count.
 """
 
@@ -38,6 +43,9 @@ from .neighbors import make_neighbor_search
 from .response import project_spheres
 
 CONTACTS_KEPT = 16  # listed contacts per sphere: equal spheres touch at most 12 without deep overlap
+# Near lists: candidates within r_i + r_j + NEAR_MARGIN r_max in the prediction, at most NEAR_KEPT of
+# them (equal spheres packed at contact have 12 within 2.5 r; a sphere with more falls back to the cells).
+NEAR_MARGIN, NEAR_KEPT = 0.5, 24
 
 # Sphere contacts run their loops serially on the CPU up to this many spheres (see SphereContacts).
 SPHERE_SERIAL_UP_TO = 8192
@@ -141,6 +149,7 @@ class ContactSpheres:
     proposed, `after_substep` resolves the contacts of the prediction in place."""
 
     name = "sphere contacts"
+    use_near_lists = True  # False: every later sweep scans the cells (the reference the tests compare)
 
     def __init__(
         self,
@@ -195,6 +204,11 @@ class ContactSpheres:
         self.slot_contacts = make(self, "spheres_slot_contacts", ti.i32, (n, CONTACTS_KEPT))
         self.slot_contact_count = make(self, "spheres_slot_contact_count", ti.i32, n)
         self.slot_approach_count = make(self, "spheres_slot_approach_count", ti.i32, n)  # approaching pairs
+        # Near lists (see the module's docstring): the later sweeps' candidates while the drift allows.
+        self.near_margin = NEAR_MARGIN * self.max_radius
+        self.slot_near = make(self, "spheres_slot_near", ti.i32, (n, NEAR_KEPT))
+        self.slot_near_count = make(self, "spheres_slot_near_count", ti.i32, n)
+        self.drift = make(self, "spheres_drift", float, ())  # max |x - x*| of the last sweep's result
         self.pred = _PositionSide(self, self.x_pred, self.slot_contact_count)
         xs = [make(self, f"spheres_x{s}", float, n, (3,)) for s in range(2)]
         counts = [make(self, f"spheres_count{s}", ti.i32, n) for s in range(2)]
@@ -241,12 +255,20 @@ class ContactSpheres:
 
     @ti.func
     def _visit_count(self, i, k, ret: ti.template()):
-        """Lists and counts the pairs that overlap in the prediction."""
+        """Lists and counts the pairs that overlap in the prediction (in ret.n), and lists the candidates
+        within the near margin (in ret.c, which the count pass does not otherwise use)."""
         reach = ret.r + self.slot_radius(k)
-        if (ret.x - self.x_pred[k]).norm_sqr() < reach * reach and k != i:
+        d2 = (ret.x - self.x_pred[k]).norm_sqr()
+        if d2 < reach * reach and k != i:
             if ret.n < CONTACTS_KEPT:
                 self.slot_contacts[i, ret.n] = k
             ret.n += 1
+        if ti.static(self.use_near_lists):
+            near = reach + self.near_margin
+            if d2 < near * near and k != i:
+                if ret.c < NEAR_KEPT:
+                    self.slot_near[i, ret.c] = k
+                ret.c += 1
 
     @ti.func
     def _approaching(self, i, k, ret: ti.template()):
@@ -366,6 +388,13 @@ class ContactSpheres:
                 )
                 ns.for_each_candidate(k, acc.x, self._visit_count, acc)
                 self.slot_contact_count[k] = acc.n
+                self.slot_near_count[k] = acc.c
+        # The largest drift from the prediction among the positions this sweep reads (the last sweep's
+        # result); this sweep's own is gathered for the next.
+        drift = ti.cast(0.0, float)
+        if ti.static(not first):
+            drift = self.drift[None]
+        self.drift[None] = 0.0
         ti.loop_config(serialize=self._serial)
         for k in range(ns.size[None]):
             acc = self._position_acc(
@@ -379,15 +408,30 @@ class ContactSpheres:
             if ti.static(first):
                 self._listed(k, sweep.visit, acc, self.x_pred[k])
             else:
-                # Candidates from the cells around the sphere's place in the prediction: the same cells
-                # for both spheres of a pair (their current positions may have crossed a cell boundary).
-                ns.for_each_candidate(k, self.x_pred[k], sweep.visit, acc)
+                self._near(k, sweep.visit, acc, drift)
                 sweep.src.count[k] = acc.n
             x = acc.x + acc.dx
             if ti.static(model.collider_count > 0):
                 if acc.w > 0.0:  # pinned spheres are kinematic: colliders never move them
                     x, _ = project_spheres(model.colliders, x, ti.Vector.zero(float, 3), acc.r, 0.0, t_end)
             dst.x[k] = x
+            if ti.static(self.use_near_lists):
+                ti.atomic_max(self.drift[None], (x - self.x_pred[k]).norm())
+
+    @ti.func
+    def _near(self, k, visit: ti.template(), acc: ti.template(), drift):
+        """visit(k, j, acc) for every candidate of slot k that can overlap it at acc.x: from its near list
+        while no pair can have closed the margin since the prediction (this sphere's drift plus the
+        largest, with 10 % to spare for rounding), else from the cells around its place in the
+        prediction (the same cells for both spheres of a pair: their current positions may have crossed
+        a cell boundary)."""
+        listed = self.slot_near_count[k]
+        own = (acc.x - self.x_pred[k]).norm()
+        if ti.static(self.use_near_lists) and listed <= NEAR_KEPT and own + drift < 0.9 * self.near_margin:
+            for c in range(listed):
+                visit(k, self.slot_near[k, c], acc)
+        else:
+            self.neighbors.for_each_candidate(k, self.x_pred[k], visit, acc)
 
     @ti.kernel
     def _velocities(self, state: ti.template(), side: ti.template(), inv_h: float, step: ti.i32):
