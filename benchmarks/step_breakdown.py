@@ -27,6 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import cloth_warp
+import flops
 import particles
 import spheres
 import taichi as ti
@@ -227,6 +228,7 @@ def size(r: dict) -> str:
 
 BREAKDOWN = "scene|size|mode|launched as|frames|wall|wall profiled|kernels|host (share)|host profiled"
 BREAKDOWN += "|launches|tasks (serial)|launch est."
+ARITHMETIC = "scene|size|mode|flops|GFLOP/s|of Taichi's scalar peak|of the f32 vector peak"
 
 
 def breakdown_rows(rows, launch: dict) -> list[list]:
@@ -254,6 +256,20 @@ def memory_rows(rows, bandwidth: float, substeps: int) -> list[list]:
         wall, kernel = total / r["wall_ms"] / 1e6, total / r["kernel_ms"] / 1e6
         out.append([r["scene"], size(r), r["mode"], f"{per:.3g}", f"{wall:.3g}", f"{kernel:.3g}"])
         out[-1].append(f"{wall / bandwidth:.2f}")
+    return out
+
+
+def arithmetic_rows(rows, peaks: dict, substeps: int) -> list[list]:
+    out = []
+    for r in rows:
+        model = flops.frame_flops(r, particles.STEPS, substeps)
+        if model is None:
+            out.append([r["scene"], size(r), r["mode"], "not estimated", "–", "–", "–"])
+            continue
+        total, per = model
+        gflops = total / r["wall_ms"] / 1e6
+        out.append([r["scene"], size(r), r["mode"], per, f"{gflops:.3g}"])
+        out[-1] += [f"{gflops / peaks['taichi scalar']:.2f}", f"{gflops / peaks['sgemm']:.3f}"]
     return out
 
 
@@ -347,6 +363,11 @@ def main(argv=None) -> None:
     log(f"copy bandwidth {bandwidth:.1f} GB/s")
     launch = {"plain": launch_costs(False, repeats, arch), "profiled": launch_costs(True, repeats, arch)}
     threads = impl.current_cfg().cpu_max_num_threads if not gpu else arch
+    peaks = {}
+    if not gpu:
+        init("f32")
+        peaks = {"sgemm": flops.sgemm_peak(), "taichi scalar": flops.taichi_scalar_peak()}
+        log(f"arithmetic peaks (GFLOP/s): {peaks}")
     rows, dt, substeps = measure_all(sizes, quick, budget, arch)
 
     page = Page(
@@ -373,11 +394,21 @@ def main(argv=None) -> None:
         "scene|size|mode|B per element-step|GB/s at wall|GB/s at kernel time|of copy bandwidth".split("|"),
         memory_rows(rows, bandwidth, substeps or 1),
     )
+    if peaks:
+        page.table(
+            "Arithmetic (model flops / wall time)",
+            ARITHMETIC.split("|"),
+            arithmetic_rows(rows, peaks, substeps or 1),
+            f"Peaks measured here: {peaks['taichi scalar']:.1f} GFLOP/s for Taichi code of independent "
+            f"multiply-adds on every core (flops.taichi_scalar_peak: Taichi does not vectorise it), "
+            f"{peaks['sgemm']:.0f} GFLOP/s for NumPy's float32 matrix product (flops.sgemm_peak: every core, "
+            "AVX-512). Flop counts per element-step: benchmarks/flops.py, on the path that hits nothing.",
+        )
     for scene, ns in sizes.items():  # the smallest and largest size of each scene
         for r in rows:
             if r["scene"] == scene and r["n"] in (ns[0], ns[-1]):
                 task_table(page, r)
-    page.write({"bandwidth": bandwidth, "launch": launch, "rows": rows})
+    page.write({"bandwidth": bandwidth, "launch": launch, "peaks": peaks, "rows": rows})
 
 
 if __name__ == "__main__":
