@@ -5,14 +5,15 @@ import numpy as np
 import pytest
 
 import taichi_anim as ta
+import taichi_anim.particles.emitters as emitters_module
 
 from .test_blocked_frame import _fountain
 
 
-def _stepped(parallel: bool, steps: int, **scene):
+def _stepped(monkeypatch, parallel: bool, steps: int, **scene):
+    monkeypatch.setattr(emitters_module, "PARALLEL_SCAN", parallel)
     model, state = _fountain(**scene)
-    for e in model.emitters:
-        e.parallel_scan = parallel
+    assert all(e.parallel_scan == parallel for e in model.emitters)
     stepper = ta.make_integrator("symplectic_euler").stepper_for(model)
     for _ in range(steps):
         stepper.step(state, 1.0 / 600.0)
@@ -32,9 +33,9 @@ def _stepped(parallel: bool, steps: int, **scene):
         dict(capacity=40_000, lifetime=0.03, jitter=0.4),
     ],
 )
-def test_parallel_slot_scan_equals_the_serial_scan(scene):
-    ref = _stepped(False, 90, **scene)
-    got = _stepped(True, 90, **scene)
+def test_parallel_slot_scan_equals_the_serial_scan(monkeypatch, scene):
+    ref = _stepped(monkeypatch, False, 90, **scene)
+    got = _stepped(monkeypatch, True, 90, **scene)
     for name in (
         "particle_free",
         "emit_cursor",

@@ -22,6 +22,10 @@ from ..rng import uniform
 from ..runtime import backend_name, data_oriented, serial_loops
 from .slot_scan import ParallelSlotScan, bit_index
 
+# Which free-slot scan emitters use: None picks by backend (parallel passes on GPUs, slot_scan.py; the
+# serial scan on the CPU), True or False forces one (the tests run the parallel scan on the CPU).
+PARALLEL_SCAN = None
+
 
 class EmitterShape(Enum):
     """Where new particles appear: at a point, on a disc facing `direction`, in a ball, or in a box."""
@@ -89,9 +93,9 @@ class Emitter:
         # Under capacity buckets the choice goes by the bucket, so that every size compiles one kernel.
         self.serial = serial_loops(capacity.bucket(self.capacity) if capacity.enabled() else self.capacity)
         # One GPU thread walking the bits is the whole step's time at 10^7 slots: GPUs scan in parallel
-        # passes (made at the first emission, so that a test can choose it on the CPU too).
-        self.parallel_scan = backend_name() != "cpu"
-        self._slot_scan = None
+        # passes, whose scratch is made here with the model (nothing is allocated mid-run).
+        self.parallel_scan = backend_name() != "cpu" if PARALLEL_SCAN is None else bool(PARALLEL_SCAN)
+        self._slot_scan = ParallelSlotScan(self.capacity) if self.parallel_scan else None
 
     def settings(self) -> dict:
         d = asdict(self.s)
@@ -118,8 +122,6 @@ class Emitter:
         if n == 0:
             return
         if self.parallel_scan:
-            if self._slot_scan is None:
-                self._slot_scan = ParallelSlotScan(self.capacity)
             self._emit_parallel(state, n, t, seed, step, *self.slot_range())
         else:
             self._emit(state, n, t, seed, step, *self.slot_range())
