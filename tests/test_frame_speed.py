@@ -244,3 +244,22 @@ def test_auto_choice_with_an_error_tolerance_meets_it_on_the_closed_form():
             assert choice.substeps > loose.candidates[choice.name]["substeps"]
     with pytest.raises(ParameterError, match="error_tolerance"):
         choose_integrator(_oscillator(k, 0.0, m), frame_dt, error_tolerance=-1.0)
+
+
+@pytest.mark.parametrize("mode", ["serial_frame", None])
+def test_serial_spring_pass_sums_into_its_ends_with_the_gathers_bits(monkeypatch, mode):
+    """On one thread the spring pass adds each force to both of its ends (terms/springs.py): springs
+    sorted by their ends reach every particle in its adjacency's order, so the sums, and the whole run,
+    are the per-spring array's and gather's bit for bit (same kernel arithmetic, other memory)."""
+    import taichi_anim.terms.springs as springs_module
+
+    out = {}
+    for scatter in (True, False):
+        ta.init("cpu", precision="f64")
+        monkeypatch.setattr(springs_module, "SCATTER_WHEN_SERIAL", scatter)
+        state, stepper = _run(mode, "symplectic_euler", 2e-4, 3, 16)
+        assert stepper.model.serial  # the serial pass is the one under test
+        out[scatter] = (state.particle_x.to_numpy(), state.particle_v.to_numpy())
+    np.testing.assert_array_equal(out[True][0], out[False][0])
+    np.testing.assert_array_equal(out[True][1], out[False][1])
+    assert np.abs(out[True][0] - _sheet().state().particle_x.to_numpy()).max() > 1e-6

@@ -22,6 +22,7 @@ from .base import TermBounds
 from .stiffness import SpringPart
 
 _EPS = 1e-12
+SCATTER_WHEN_SERIAL = True  # the serial spring pass sums into its ends (False: per spring, then gather)
 
 
 @ti.func
@@ -48,11 +49,16 @@ class SpringCache:
     S_s = -(h df/dv + h^2 df/dx) = axial n n^T + transverse (I - n n^T) (S,2) [kg], and df/dx (v_i - v_j);
     `entry` holds (n, axial, transverse) per adjacency entry (2S,)."""
 
-    def __init__(self, count: int, implicit: bool, new_field=None):
-        """count: the springs' capacity; new_field(owner, role, dtype, shape, dims): the model's
-        allocator (pooled under capacity buckets), or None for plain fields."""
+    def __init__(self, count: int, implicit: bool, new_field=None, rows: int = 0):
+        """count: the springs' capacity; rows: the particles' (for the serial pass's per-particle sums);
+        new_field(owner, role, dtype, shape, dims): the model's allocator (pooled under capacity
+        buckets), or None for plain fields."""
         make = new_field or capacity.plain
         self.f = make(self, "spring_f", float, count, (3,))
+        # The serial spring pass adds each force to both ends at once (Springs.evaluate): per-particle
+        # sums, and which of the two the last pass left (1: acc, 0: f per spring).
+        self.acc = make(self, "spring_acc", float, max(rows, 1), (3,)) if SCATTER_WHEN_SERIAL else None
+        self.mode = make(self, "spring_mode", ti.i32, ())
         self.n = make(self, "spring_n", float, count, (3,)) if implicit else None
         self.ab = make(self, "spring_ab", float, count, (2,)) if implicit else None
         # (n, axial, transverse) again per adjacency entry (2S,), in the order the matrix-vector product
@@ -85,6 +91,7 @@ class Springs(TermBounds):
         self.buckets = buckets  # kernels branch on it at compile time
         self.capacity = capacity.bucket(s) if buckets else s
         rows = model.particle_capacity if buckets else particle_count
+        self.rows = rows
         self._new_field = model.new_field if buckets else None
         make = self._new_field or capacity.plain
         self.spring_live = make(self, "spring_live", ti.i32, ()) if buckets else None
@@ -143,7 +150,7 @@ class Springs(TermBounds):
     def make_cache(self, particle_count: int, implicit: bool) -> SpringCache:
         """This term's scratch for one solver: per-spring forces (and the compact linearisation if
         `implicit`)."""
-        return SpringCache(self.capacity, implicit, self._new_field)
+        return SpringCache(self.capacity, implicit, self._new_field, self.rows)
 
     def energy(self, x, masses=None) -> float:
         """Elastic energy sum_s k/2 (l - L)^2 [J] at positions x (N,3) [m]."""
@@ -168,18 +175,50 @@ class Springs(TermBounds):
 
     @ti.func
     def evaluate(self, cache: ti.template(), xf: ti.template(), vf: ti.template(), t, serial: ti.template()):
-        """The spring pass (a top-level loop: call it first in a kernel): every spring's force at the
-        positions xf and velocities vf (fields) into the cache."""
-        ti.loop_config(serialize=serial)
-        for s in range(self.live_springs()):
-            ij = self.spring_pair[s]
-            p = self.spring_param[s]
-            f, _, _ = spring_force(xf[ij[0]] - xf[ij[1]], vf[ij[0]] - vf[ij[1]], p[0], p[1], p[2])
-            cache.f[s] = f
+        """The spring pass (top-level loops: call it first in a kernel): every spring's force at the
+        positions xf and velocities vf (fields) into the cache.
+
+        On one thread each force goes straight into its two ends' sums, with no per-spring array and no
+        adjacency walk after. The springs are sorted by (first end, second end), so each particle
+        receives its springs in ascending order of the other end, the adjacency's order, starting from
+        zero: `gather` returns the same bits either way."""
+        if ti.static(serial and SCATTER_WHEN_SERIAL):
+            ti.loop_config(serialize=True)
+            for i in range(self.rows):
+                cache.acc[i] = ti.Vector.zero(float, 3)
+            ti.loop_config(serialize=True)
+            for s in range(self.live_springs()):
+                ij = self.spring_pair[s]
+                p = self.spring_param[s]
+                f, _, _ = spring_force(xf[ij[0]] - xf[ij[1]], vf[ij[0]] - vf[ij[1]], p[0], p[1], p[2])
+                cache.acc[ij[0]] += f
+                cache.acc[ij[1]] -= f
+            cache.mode[None] = 1
+        else:
+            ti.loop_config(serialize=serial)
+            for s in range(self.live_springs()):
+                ij = self.spring_pair[s]
+                p = self.spring_param[s]
+                f, _, _ = spring_force(xf[ij[0]] - xf[ij[1]], vf[ij[0]] - vf[ij[1]], p[0], p[1], p[2])
+                cache.f[s] = f
+            cache.mode[None] = 0
 
     @ti.func
     def gather(self, cache: ti.template(), i):
         """Sum of the forces of the last spring pass on particle i."""
+        f = ti.Vector.zero(float, 3)
+        if ti.static(SCATTER_WHEN_SERIAL):
+            if cache.mode[None] == 1:
+                f = cache.acc[i]
+            else:
+                f = self._walk(cache, i)
+        else:
+            f = self._walk(cache, i)
+        return f
+
+    @ti.func
+    def _walk(self, cache: ti.template(), i):
+        """Particle i's spring forces from the per-spring array, in its adjacency's order."""
         f = ti.Vector.zero(float, 3)
         for e in range(self.adj_start[i], self.adj_start[i + 1]):
             s = self.adj_spring[e]
