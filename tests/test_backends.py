@@ -22,6 +22,14 @@ def test_auto_and_gpu_choose_the_device_that_passes_its_probe(arch):
     assert choice["requested"] == arch and choice["chosen"] == found[0]
 
 
+def _require(arch: str) -> None:
+    """Skip unless Taichi starts on `arch` here."""
+    try:
+        ta.init(arch)
+    except RuntimeError as e:
+        pytest.skip(f"{arch} not available here: {e}")
+
+
 def fountain_positions(arch: str, frames: int = 30):
     ta.init(arch, precision="f32")
     scene = make_scene("fountain", particles=5000, seed=2)
@@ -34,10 +42,7 @@ def fountain_positions(arch: str, frames: int = 30):
 @pytest.mark.gpu
 @pytest.mark.parametrize("arch", ["cuda", "vulkan"])
 def test_gpu_backend_matches_cpu(arch):
-    try:
-        ta.init(arch)
-    except RuntimeError as e:
-        pytest.skip(f"{arch} not available here: {e}")
+    _require(arch)
     idx_gpu, x_gpu = fountain_positions(arch)
     idx_cpu, x_cpu = fountain_positions("cpu")
     # Same seed, same emission order: the same slots are alive. Positions agree to float32 round-off
@@ -84,10 +89,7 @@ def test_gpu_sphere_contacts_match_cpu(arch, method):
     spread that rounding alone makes over these 1,440 steps of a pile in contact (about 89 % of the
     spheres within 1 mm on the CPU here; the GPU runs gave 92-95 % on an H200). A GPU result no
     further from the CPU's than that, less 5 points, passes; a race or a wrong sum moves far more."""
-    try:
-        ta.init(arch)
-    except RuntimeError as e:
-        pytest.skip(f"{arch} not available here: {e}")
+    _require(arch)
     x_gpu, (overlap_gpu, contacts_gpu) = sphere_pile(arch, method)
     x_cpu, (overlap_cpu, contacts_cpu) = sphere_pile("cpu", method)
     x_ulp, _ = sphere_pile("cpu", method, nudge=True)
@@ -123,10 +125,7 @@ def hanging_cloth(arch: str, integrator: str, steps: int, dt: float):
 def test_gpu_cloth_matches_cpu(arch, integrator, steps, dt):
     """Springs, the implicit system and the solvers' GPU reductions (atomics instead of CPU block sums):
     the same cloth ends within float32 round-off of the CPU run, and PCG converges the same way."""
-    try:
-        ta.init(arch)
-    except RuntimeError as e:
-        pytest.skip(f"{arch} not available here: {e}")
+    _require(arch)
     x_gpu, solve_gpu = hanging_cloth(arch, integrator, steps, dt)
     x_cpu, solve_cpu = hanging_cloth("cpu", integrator, steps, dt)
     assert np.abs(x_gpu - x_cpu).max() < 2e-3
@@ -161,10 +160,7 @@ def falling_cloud(arch: str, frames: int = 20, substeps: int = 10):
 def test_gpu_blocked_frames_match_cpu(arch):
     """Without emitters a frame of substeps runs as one blocked launch on every backend: on the GPU it
     gives the CPU's particles to float32 round-off amplified by the bounces (fast-math differs)."""
-    try:
-        ta.init(arch)
-    except RuntimeError as e:
-        pytest.skip(f"{arch} not available here: {e}")
+    _require(arch)
     x_gpu, mode_gpu = falling_cloud(arch)
     x_cpu, mode_cpu = falling_cloud("cpu")
     assert mode_gpu == mode_cpu == "blocked"

@@ -121,10 +121,7 @@ class Emitter:
         n = self.plan(state, dt)
         if n == 0:
             return
-        if self.parallel_scan:
-            self._emit_parallel(state, n, t, seed, step, *self.slot_range())
-        else:
-            self._emit(state, n, t, seed, step, *self.slot_range())
+        self._emit(state, n, t, seed, step, *self.slot_range())
 
     @ti.kernel
     def _emit(
@@ -140,32 +137,17 @@ class Emitter:
         mask_lo: ti.u32,
         mask_hi: ti.u32,
     ):
-        # One launch: a serial scan for free slots, then a parallel spawn into them.
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            state.emit_found[self.index] = self.scan(
-                state, n, start, word_lo, word_hi, mask_lo, mask_hi, self, 0
-            )
+        # One launch: the scan for free slots (serial, or the parallel passes of slot_scan.py), then a
+        # parallel spawn into them.
+        if ti.static(self.parallel_scan):
+            self._slot_scan.take(state, self.index, n, start, word_lo, word_hi, mask_lo, mask_hi)
+        else:
+            ti.loop_config(serialize=True)
+            for _ in range(1):
+                state.emit_found[self.index] = self.scan(
+                    state, n, start, word_lo, word_hi, mask_lo, mask_hi, self, 0
+                )
         ti.loop_config(serialize=self.serial)
-        for j in range(state.emit_found[self.index]):
-            self._spawn_one(state, start, j, t, seed, step)
-
-    @ti.kernel
-    def _emit_parallel(
-        self,
-        state: ti.template(),
-        n: ti.i32,
-        t: float,
-        seed: ti.u32,
-        step: ti.u32,
-        start: ti.i32,
-        word_lo: ti.i32,
-        word_hi: ti.i32,
-        mask_lo: ti.u32,
-        mask_hi: ti.u32,
-    ):
-        # One launch: the scan's parallel passes (slot_scan.py), then the spawn.
-        self._slot_scan.take(state, self.index, n, start, word_lo, word_hi, mask_lo, mask_hi)
         for j in range(state.emit_found[self.index]):
             self._spawn_one(state, start, j, t, seed, step)
 
