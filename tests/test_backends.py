@@ -41,9 +41,16 @@ def fountain_positions(arch: str, frames: int = 30):
 
 @pytest.mark.gpu
 @pytest.mark.parametrize("arch", ["cuda", "vulkan"])
-def test_gpu_backend_matches_cpu(arch):
+@pytest.mark.parametrize("scan", [None, True])
+def test_gpu_backend_matches_cpu(monkeypatch, arch, scan):
+    """The fountain on the GPU: the emitters' scan chosen by pool size (5,000 slots: the serial one)
+    and forced to the parallel passes, against the CPU's serial scan."""
     _require(arch)
+    import taichi_anim.particles.emitters as emitters_module
+
+    monkeypatch.setattr(emitters_module, "PARALLEL_SCAN", scan)
     idx_gpu, x_gpu = fountain_positions(arch)
+    monkeypatch.setattr(emitters_module, "PARALLEL_SCAN", None)
     idx_cpu, x_cpu = fountain_positions("cpu")
     # Same seed, same emission order: the same slots are alive. Positions agree to float32 round-off
     # amplified over 120 steps and a few bounces (fast-math differs between backends).
