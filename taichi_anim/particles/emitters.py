@@ -96,8 +96,8 @@ class Emitter:
         self.mask_hi = 0xFFFFFFFF >> (31 - ((end - 1) & 31))
         # Under capacity buckets the choice goes by the bucket, so that every size compiles one kernel.
         self.serial = serial_loops(capacity.bucket(self.capacity) if capacity.enabled() else self.capacity)
-        # One GPU thread walking the bits is the whole step's time at 10^7 slots: GPUs scan in parallel
-        # passes, whose scratch is made here with the model (nothing is allocated mid-run).
+        # One GPU thread walking the bits was nearly the whole step's time at 10^7 slots: large GPU pools
+        # scan in parallel passes, whose scratch is made here with the model (nothing is allocated mid-run).
         slots = capacity.bucket(self.capacity) if capacity.enabled() else self.capacity
         on_gpu = backend_name() != "cpu" and slots >= PARALLEL_SCAN_FROM
         self.parallel_scan = on_gpu if PARALLEL_SCAN is None else bool(PARALLEL_SCAN)

@@ -2,8 +2,9 @@
 
 The serial scan (`Emitter.scan`) walks the free bits 32 slots a word from a rotating cursor and takes
 the first n free slots. On a GPU that walk runs on one thread at memory latency per word and per slot
-(10^7 particles on an H200: 55 ms a step, the whole step's time). Here the same slots come out of three
-parallel passes of one launch:
+(10^7 particles on an H200: 549 ms a frame of 10 steps, ~24 ms of it a host copy the benchmark made;
+5.6 ms with the passes below, without that copy). The same slots come out of three parallel passes of
+one launch:
 
 1. every word of the emitter's range, in the scan's order (rotated to start at the cursor), counts its
    free bits;
