@@ -250,6 +250,7 @@ class Springs(TermBounds):
             e = self.spring_entry[s]
             cache.entry[e[0]] = packed
             cache.entry[e[1]] = packed
+        cache.mode[None] = 0  # the forces are per spring again: a later gather walks them
 
     @ti.func
     def gather_linear(self, cache: ti.template(), i):
