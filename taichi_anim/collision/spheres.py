@@ -205,9 +205,13 @@ class ContactSpheres:
         self.slot_contact_count = make(self, "spheres_slot_contact_count", ti.i32, n)
         self.slot_approach_count = make(self, "spheres_slot_approach_count", ti.i32, n)  # approaching pairs
         # Near lists (see the module's docstring): the later sweeps' candidates while the drift allows.
+        # Only the sweeps after the first walk them: with one sweep, listing and tracking would be cost
+        # alone (the spheres demo's single sweep ran 27 % slower with them).
+        self.near_lists = self.use_near_lists and self.iterations > 1
         self.near_margin = NEAR_MARGIN * self.max_radius
-        self.slot_near = make(self, "spheres_slot_near", ti.i32, (n, NEAR_KEPT))
-        self.slot_near_count = make(self, "spheres_slot_near_count", ti.i32, n)
+        near = self.near_lists
+        self.slot_near = make(self, "spheres_slot_near", ti.i32, (n, NEAR_KEPT)) if near else None
+        self.slot_near_count = make(self, "spheres_slot_near_count", ti.i32, n) if near else None
         self.drift = make(self, "spheres_drift", float, ())  # max |x - x*| of the last sweep's result
         self.pred = _PositionSide(self, self.x_pred, self.slot_contact_count)
         xs = [make(self, f"spheres_x{s}", float, n, (3,)) for s in range(2)]
@@ -263,7 +267,7 @@ class ContactSpheres:
             if ret.n < CONTACTS_KEPT:
                 self.slot_contacts[i, ret.n] = k
             ret.n += 1
-        if ti.static(self.use_near_lists):
+        if ti.static(self.near_lists):
             near = reach + self.near_margin
             if d2 < near * near and k != i:
                 if ret.c < NEAR_KEPT:
@@ -388,7 +392,8 @@ class ContactSpheres:
                 )
                 ns.for_each_candidate(k, acc.x, self._visit_count, acc)
                 self.slot_contact_count[k] = acc.n
-                self.slot_near_count[k] = acc.c
+                if ti.static(self.near_lists):
+                    self.slot_near_count[k] = acc.c
         # The largest drift from the prediction among the positions this sweep reads (the last sweep's
         # result); this sweep's own is gathered for the next.
         drift = ti.cast(0.0, float)
@@ -415,7 +420,7 @@ class ContactSpheres:
                 if acc.w > 0.0:  # pinned spheres are kinematic: colliders never move them
                     x, _ = project_spheres(model.colliders, x, ti.Vector.zero(float, 3), acc.r, 0.0, t_end)
             dst.x[k] = x
-            if ti.static(self.use_near_lists):
+            if ti.static(self.near_lists):
                 ti.atomic_max(self.drift[None], (x - self.x_pred[k]).norm())
 
     @ti.func
@@ -425,11 +430,14 @@ class ContactSpheres:
         largest, with 10 % to spare for rounding), else from the cells around its place in the
         prediction (the same cells for both spheres of a pair: their current positions may have crossed
         a cell boundary)."""
-        listed = self.slot_near_count[k]
-        own = (acc.x - self.x_pred[k]).norm()
-        if ti.static(self.use_near_lists) and listed <= NEAR_KEPT and own + drift < 0.9 * self.near_margin:
-            for c in range(listed):
-                visit(k, self.slot_near[k, c], acc)
+        if ti.static(self.near_lists):
+            listed = self.slot_near_count[k]
+            own = (acc.x - self.x_pred[k]).norm()
+            if listed <= NEAR_KEPT and own + drift < 0.9 * self.near_margin:
+                for c in range(listed):
+                    visit(k, self.slot_near[k, c], acc)
+            else:
+                self.neighbors.for_each_candidate(k, self.x_pred[k], visit, acc)
         else:
             self.neighbors.for_each_candidate(k, self.x_pred[k], visit, acc)
 
