@@ -18,8 +18,10 @@ import warnings
 import taichi as ti
 from taichi.lang import impl
 
-from . import capacity, validate
+from . import capacity, frontend, validate
 from .errors import ParameterError
+
+frontend.install()  # Taichi's front end builds every kernel on every run; see frontend.py
 
 ARCHS = ("cpu", "gpu", "cuda", "vulkan", "auto")
 PRECISIONS = ("f32", "f64")

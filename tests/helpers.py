@@ -1,6 +1,7 @@
 """Small scene builders shared by the tests (public API only)."""
 
 import numpy as np
+import taichi as ti
 
 import taichi_anim as ta
 
@@ -45,3 +46,47 @@ def ulp_tolerance(scale: float, ulps: int = 64) -> float:
     on AVX-512 CPUs), so only bitwise comparisons of the same kernel (determinism) are exact. 64 ulp
     covers the tens of roundings of a closest-point or ray-triangle evaluation with a margin."""
     return ulps * kernel_eps() * scale
+
+
+@ti.kernel
+def _linear_pass(
+    term: ti.template(),
+    cache: ti.template(),
+    xf: ti.template(),
+    vf: ti.template(),
+    pf: ti.template(),
+    f: ti.template(),
+    kxv: ti.template(),
+    diag: ti.template(),
+    sp: ti.template(),
+    h: float,
+):
+    term.linearize(cache, xf, vf, 0.0, h, True)
+    for i in range(xf.shape[0]):
+        f[i], kxv[i], diag[i] = term.gather_linear(cache, i)
+        sp[i] = term.apply(cache, i, pf)
+
+
+def assert_passes_match_element_arrays(term, x, v, p, h: float, rel: float = 1e-13):
+    """An element term's solver passes (linearize into its own cache, then the per-particle gathers and
+    S p) against its element_linear arrays summed per particle in NumPy: the same forces, df/dx v, diagonal
+    blocks and products, to `rel` of the largest entry (f64 round-off; the passes may factor S)."""
+    n, k = len(x), term.arity
+    xf, vf, pf, f, kxv, sp = (ti.Vector.field(3, float, n) for _ in range(6))
+    diag = ti.Matrix.field(3, 3, float, n)
+    for fld, val in ((xf, x), (vf, v), (pf, p)):
+        fld.from_numpy(val)
+    _linear_pass(term, term.make_cache(n, True), xf, vf, pf, f, kxv, diag, sp, h)
+    _, FL, S, KV = term.element_arrays(x, v, h=h)
+    ids = term.vertices
+    want_f, want_kxv, want_sp = (np.zeros((n, 3)) for _ in range(3))
+    want_diag = np.zeros((n, 3, 3))
+    Sp = np.einsum("eij,ej->ei", S, p[ids].reshape(-1, 3 * k)).reshape(-1, k, 3)
+    for a in range(k):
+        np.add.at(want_f, ids[:, a], FL.reshape(-1, k, 3)[:, a])
+        np.add.at(want_kxv, ids[:, a], KV.reshape(-1, k, 3)[:, a])
+        np.add.at(want_sp, ids[:, a], Sp[:, a])
+        np.add.at(want_diag, ids[:, a], S[:, 3 * a : 3 * a + 3, 3 * a : 3 * a + 3])
+    for got, want in ((f, want_f), (kxv, want_kxv), (sp, want_sp), (diag, want_diag)):
+        scale = max(np.abs(want).max(), np.finfo(float).tiny)
+        assert np.abs(got.to_numpy() - want).max() <= rel * scale

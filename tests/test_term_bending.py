@@ -12,10 +12,11 @@ import math
 
 import numpy as np
 import pytest
-import taichi as ti
 
 from taichi_anim.errors import ParameterError
 from taichi_anim.terms.bending import BendingDihedral, hinge_angles, mesh_hinges
+
+from .helpers import assert_passes_match_element_arrays
 
 EPS = np.finfo(np.float64).eps
 DELTA = 1e-6
@@ -406,52 +407,16 @@ def test_equilateral_mesh_constant(shape):
 # ---- the element protocol through the engine's passes (gathers, S p)
 
 
-@ti.kernel
-def linear_pass(
-    term: ti.template(),
-    cache: ti.template(),
-    xf: ti.template(),
-    vf: ti.template(),
-    pf: ti.template(),
-    f: ti.template(),
-    kxv: ti.template(),
-    diag: ti.template(),
-    sp: ti.template(),
-    h: float,
-):
-    term.linearize(cache, xf, vf, 0.0, h, True)
-    for i in range(xf.shape[0]):
-        f[i], kxv[i], diag[i] = term.gather_linear(cache, i)
-        sp[i] = term.apply(cache, i, pf)
-
-
 def test_protocol_gathers_match_element_arrays():
     rng = np.random.default_rng(8)
     flat, tris = grid_mesh(4, 3, a=0.2, c=0.3)
     term = BendingDihedral.from_mesh(len(flat), tris, cylinder(flat, 1.5), stiffness=0.3, damping=0.02)
-    n, h = len(flat), 0.005
     x, v, p = (
         flat + 0.02 * rng.normal(size=flat.shape),
         rng.normal(size=flat.shape),
         rng.normal(size=flat.shape),
     )
-    xf, vf, pf, f, kxv, sp = (ti.Vector.field(3, float, n) for _ in range(6))
-    diag = ti.Matrix.field(3, 3, float, n)
-    for fld, val in ((xf, x), (vf, v), (pf, p)):
-        fld.from_numpy(val)
-    linear_pass(term, term.make_cache(n, True), xf, vf, pf, f, kxv, diag, sp, h)
-    _, FL, S, KV = term.element_arrays(x, v, h=h)
-    ids = term.vertices
-    want_f, want_kxv, want_sp = (np.zeros((n, 3)) for _ in range(3))
-    want_diag = np.zeros((n, 3, 3))
-    Sp = np.einsum("hij,hj->hi", S, p[ids].reshape(-1, 12)).reshape(-1, 4, 3)
-    for a in range(4):
-        np.add.at(want_f, ids[:, a], FL.reshape(-1, 4, 3)[:, a])
-        np.add.at(want_kxv, ids[:, a], KV.reshape(-1, 4, 3)[:, a])
-        np.add.at(want_sp, ids[:, a], Sp[:, a])
-        np.add.at(want_diag, ids[:, a], S[:, 3 * a : 3 * a + 3, 3 * a : 3 * a + 3])
-    for got, want in ((f, want_f), (kxv, want_kxv), (sp, want_sp), (diag, want_diag)):
-        assert np.abs(got.to_numpy() - want).max() <= 1e-13 * np.abs(want).max()
+    assert_passes_match_element_arrays(term, x, v, p, h=0.005)
 
 
 # ---- 8. parameter errors

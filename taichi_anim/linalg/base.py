@@ -93,8 +93,11 @@ class LinearSolver:
         self._start(system, self.warm_start)
         base = 0
         floor = float(atol) ** 2
+        iterate = self._iterate
+        if self.serial_blocks and hasattr(self, "_iterate_serial"):
+            iterate = self._iterate_serial  # the same iterations as one serial loop (fewer to compile)
         while True:
-            self._iterate(system, self.check_every, base, self.tol, floor, self.max_iterations)
+            iterate(system, self.check_every, base, self.tol, floor, self.max_iterations)
             base += self.check_every
             if self.status[0] > 0:
                 break
@@ -180,7 +183,7 @@ class LinearSolver:
         return ti.min((blk + 1) * self.block, self.rows())
 
     @ti.func
-    def store(self, slot: ti.template(), blk, s):
+    def store(self, slot, blk, s):
         """Add block blk's partial sum s to slot `slot`: kept per block on the CPU (summed later in block
         order), an atomic add on GPUs."""
         if ti.static(self.blocked):
@@ -189,7 +192,7 @@ class LinearSolver:
             ti.atomic_add(self.sums[slot], s)
 
     @ti.func
-    def total(self, slot: ti.template()):
+    def total(self, slot):
         """The sum in slot `slot`: the per-block partial sums added in block order on the CPU (the same on any
         thread count), the atomic sum on GPUs."""
         acc = ti.Vector.zero(float, 3)
@@ -201,7 +204,7 @@ class LinearSolver:
         return acc
 
     @ti.func
-    def clear(self, slot: ti.template(), blk):
+    def clear(self, slot, blk):
         """Zero a GPU slot (thread 0) a loop before it accumulates again; nothing to do on the CPU."""
         if ti.static(not self.blocked):
             if blk == 0:

@@ -18,10 +18,10 @@ Not conservative: no energy (has_energy = False). Linearisation for implicit ste
 except for the normal component of the drag, f_n = 1/2 rho C_d A |u_n| u_n, whose exact derivative is
 d f_n / d u_n = rho C_d A |u_n| with d u_n / d v_b = -n^T / 3, so per vertex pair (a, b)
     K_v(a, b) = -(1/9) rho C_d A |u_n| n n^T,    S_ab = -h K_v(a, b)   (KV = 0)
-S = (h rho C_d A |u_n| / 9) (1 1^T) (x) n n^T is symmetric positive semi-definite (rank one): damping of
-the cloth's motion normal to itself, which is what keeps a fluttering sheet stable at large steps. A
-and n are held fixed over the step (explicit in position, K_x = 0); the tangential drag and the lift are
-explicit. Degenerate triangles (|c| = 0) and still air (s = 0) give exactly zero force, not NaN.
+S = (h rho C_d A |u_n| / 9) (1 1^T) (x) n n^T is symmetric positive semi-definite (rank one, stored as its
+factor: rank_one.py): damping of the cloth's motion normal to itself, which is what keeps a fluttering
+sheet stable at large steps. A and n are held fixed over the step (explicit in position, K_x = 0); the
+tangential drag and the lift are explicit. Degenerate triangles (|c| = 0) and still air (s = 0) give exactly zero force, not NaN.
 """
 
 import math
@@ -33,6 +33,7 @@ from .. import validate
 from ..errors import ParameterError
 from ..runtime import data_oriented
 from .base import ElementTerm
+from .rank_one import RankOneLinear
 
 # Guards the two divisions (|c| for n, s for u / s): below it the force is zero or O(eps) anyway,
 # since A = |c| / 2 multiplies everything and |u_n u / s| <= s.
@@ -40,7 +41,7 @@ _EPS = 1e-12
 
 
 @data_oriented
-class AeroTriangles(ElementTerm):
+class AeroTriangles(RankOneLinear, ElementTerm):
     """Flat-plate drag and lift on triangles (F,3) of particle indices, in a uniform wind [m/s] of
     air density [kg/m^3], with drag and lift coefficients (dimensionless) and an optional sinusoidal
     gust: wind (1 + gust_amplitude sin(2 pi gust_frequency t)), amplitude in [0, 1], frequency [Hz]."""
@@ -145,6 +146,15 @@ class AeroTriangles(ElementTerm):
                     for c in ti.static(range(3)):
                         S[3 * a + r, 3 * b + c] = blk[r, c]
         return self.spread(f), S, ti.Vector.zero(float, 9)
+
+    @ti.func
+    def element_rank_one(self, e, X, V, t, h):
+        """(F [N], s [sqrt(kg)], df/dx v [N/s]) of triangle e: element_linear's S = s s^T with
+        s = sqrt(h rho C_d A |u_n| / 9) (n, n, n) (rank_one.py)."""
+        f, n, q, un = self.panel(X, V, t)
+        w = ti.sqrt(h * 2.0 * q * self.drag_coefficient * ti.abs(un) / 9.0) * n
+        s = ti.Vector([w[0], w[1], w[2], w[0], w[1], w[2], w[0], w[1], w[2]])
+        return self.spread(f), s, ti.Vector.zero(float, 9)
 
     @ti.func
     def element_energy(self, e, X):

@@ -50,6 +50,7 @@ from .. import capacity, validate
 from ..errors import ParameterError
 from ..runtime import data_oriented, np_float
 from .base import ElementTerm
+from .rank_one import RankOneLinear
 
 _TINY = 1e-30  # [m^2, m^4] floor of |e|^2 and |n|^2: representable in f32, far below any real mesh
 
@@ -120,7 +121,7 @@ def hinge_angle_gradient(X):
 
 
 @data_oriented
-class BendingDihedral(ElementTerm):
+class BendingDihedral(RankOneLinear, ElementTerm):
     """Discrete-shells bending on hinges (H,4) of particle indices (mesh_hinges), rest shape
     rest_positions (N,3) [m] (gives each hinge's rest angle and weight); stiffness k [N m] (a plate's
     D = Y t^3 / (12 (1 - nu^2))), damping beta [s] (Rayleigh, stiffness-proportional)."""
@@ -216,59 +217,13 @@ class BendingDihedral(ElementTerm):
         S = (p[1] * (h * p[2] + h * h)) * g.outer_product(g)  # rank one: (h beta + h^2) k w g g^T
         return f, S, -p[1] * gv * g
 
-    # ---- rank-one linearisation: S = s s^T with s = sqrt((h beta + h^2) k w) g, stored as s per vertex
-    # (4 vectors per hinge instead of 16 3x3 blocks: a quarter of the memory, and S p in 8 dot products)
-
-    def make_cache(self, particle_count: int, implicit: bool) -> "HingeCache":
-        """This term's scratch for one solver: per-hinge forces and, if `implicit`, one gradient vector per
-        vertex."""
-        self._ensure_placed()
-        return HingeCache(self.element_rows, implicit, self._make)
-
     @ti.func
-    def linearize(
-        self, cache: ti.template(), xf: ti.template(), vf: ti.template(), t, h, serial: ti.template()
-    ):
-        """A loop over hinges: forces [N] and the rank-one linearisation for step h [s] into the cache."""
-        ti.loop_config(serialize=serial)
-        for e in range(self.live_elements()):
-            X = self.stack(e, xf)
-            V = self.stack(e, vf)
-            d, g, p = self.excess(e, X)
-            gv = g.dot(V)
-            f = -p[1] * (d + p[2] * gv) * g
-            kv = -p[1] * gv * g
-            s = ti.sqrt(p[1] * (h * p[2] + h * h)) * g
-            for a in ti.static(range(4)):
-                cache.f[e, a] = ti.Vector([f[3 * a], f[3 * a + 1], f[3 * a + 2]])
-                cache.kxv[e, a] = ti.Vector([kv[3 * a], kv[3 * a + 1], kv[3 * a + 2]])
-                cache.s[e, a] = ti.Vector([s[3 * a], s[3 * a + 1], s[3 * a + 2]])
-
-    @ti.func
-    def diagonal_block(self, cache: ti.template(), e, a):
-        return cache.s[e, a].outer_product(cache.s[e, a])
-
-    @ti.func
-    def apply(self, cache: ti.template(), i, pf: ti.template()):
-        """Row i of S p for the Vector field pf, from the rank-one blocks."""
-        acc = ti.Vector.zero(float, 3)
-        for k in range(self.adj_start[i], self.adj_start[i + 1]):
-            q = self.adj_entry[k]
-            e, a = q // 4, q % 4
-            ids = self.element_vertex[e]
-            sp = 0.0
-            for b in ti.static(range(4)):
-                sp += cache.s[e, b].dot(pf[ids[b]])
-            acc += sp * cache.s[e, a]
-        return acc
-
-
-@data_oriented
-class HingeCache:
-    """A solver's scratch for the bending term: forces (H,4) [N]; with implicit solves df/dx v (H,4) and
-    the rank-one factor s (H,4) of S = s s^T."""
-
-    def __init__(self, count: int, implicit: bool, make=capacity.plain):
-        self.f = make(self, "hinge_f", float, (count, 4), (3,))
-        self.kxv = make(self, "hinge_kxv", float, (count, 4), (3,)) if implicit else None
-        self.s = make(self, "hinge_s", float, (count, 4), (3,)) if implicit else None
+    def element_rank_one(self, e, X, V, t, h):
+        """(F [N], s [sqrt(kg)], df/dx v [N/s]) of hinge e for step h [s]: element_linear's S = s s^T
+        (rank_one.py: 4 vectors per hinge instead of 16 3x3 blocks, S p in 8 dot products)."""
+        d, g, p = self.excess(e, X)
+        gv = g.dot(V)
+        f = -p[1] * (d + p[2] * gv) * g
+        kv = -p[1] * gv * g
+        s = ti.sqrt(p[1] * (h * p[2] + h * h)) * g
+        return f, s, kv

@@ -1,0 +1,163 @@
+"""A cheaper Python front end for Taichi's kernels: the same IR, built in about half the time.
+
+Every kernel instance is built by Taichi's Python front end, on each run, warm offline cache or not: the
+cache key is a hash of the IR that front end builds, so it cannot be skipped. On this engine's largest
+kernels that front end was most of a warm start (the flag: 3.5 s of 4.5 s), and a profile of it shows
+two costs that do not shape the IR:
+
+- the source position of every AST node visited, formatted eagerly (a `TextWrapper` per line) so that an
+  error message can name it: more than half of the front end's time, though only one visit in four ever
+  reads it (the IR's debug info) and an error reads one;
+- the function's source read again through `inspect` (a tokenizer pass) at every inlined `ti.func`
+  call: 0.7 s of the flag's 8 s profile.
+
+`install()` makes the first lazy (each visit pushes its node; the text is formatted when read, memoised
+by the source it points at) and memoises the second per code object. The strings are Taichi's own,
+character for character, so the IR, its debug info and the offline cache keys are unchanged (tested:
+tests/test_frontend.py). Like the fast `data_oriented` in runtime.py it touches Taichi's private names,
+so it is on only for the Taichi versions it was checked against, and TAICHI_ANIM_PLAIN_FRONTEND=1 turns
+it off.
+"""
+
+from __future__ import annotations
+
+import ast
+import os
+import traceback
+
+import taichi as ti
+from taichi.lang import impl
+from taichi.lang.exception import TaichiCompilationError, handle_exception_from_cpp
+
+CHECKED_VERSIONS = {(1, 7, 4)}
+MULTILINE_HEADERS = ("For", "While", "FunctionDef", "If")  # Taichi prints only their header lines
+
+_installed = False
+_originals: dict = {}
+_positions: dict = {}  # memo of formatted positions, keyed by the text and place they describe
+_sources: dict = {}  # code object -> (source lines, first line)
+
+
+class _Position:
+    """A node's source position, formatted only when something reads it."""
+
+    __slots__ = ("ctx", "node")
+
+    def __init__(self, ctx, node):
+        self.ctx = ctx
+        self.node = node
+
+    def text(self) -> str:
+        return _position_text(self.ctx, self.node)
+
+
+def _position_text(ctx, node) -> str:
+    """Taichi's `get_pos_info(node)`, memoised on everything its text depends on."""
+    first, last = node.lineno, node.end_lineno
+    body = getattr(node, "body", None)
+    header_end = body[0].lineno if type(node).__name__ in MULTILINE_HEADERS and body else None
+    key = (
+        ctx.file,
+        ctx.lineno_offset,
+        ctx.func.func.__name__,
+        ctx.indent,
+        type(node).__name__,
+        first,
+        last,
+        node.col_offset,
+        node.end_col_offset,
+        header_end,
+        "\n".join(ctx.src[first - 1 : max(last, first)]),
+    )
+    text = _positions.get(key)
+    if text is None:
+        text = _positions[key] = _originals["get_pos_info"](ctx, node)
+    return text
+
+
+def _builder_call(self, ctx, node):
+    """Taichi's `Builder.__call__` with the position pushed unformatted (see the module's docstring)."""
+    method = getattr(self, "build_" + type(node).__name__, None)
+    if method is None or not isinstance(node, (ast.stmt, ast.expr)):
+        return _originals["builder_call"](self, ctx, node)  # no position to push; unknown nodes raise there
+    stack = impl.get_runtime().src_info_stack
+    stack.append(_Position(ctx, node))
+    try:
+        return method(ctx, node)
+    except Exception as e:
+        _raise_with_position(ctx, node, e)
+    finally:
+        stack.pop()
+
+
+def _raise_with_position(ctx, node, e):
+    """What Taichi's builder does with an error: name the innermost node's position once, then pass it up."""
+    if impl.get_runtime().print_full_traceback:
+        raise e
+    if ctx.raised:
+        raise e.with_traceback(None)
+    ctx.raised = True
+    e = handle_exception_from_cpp(e)
+    if not isinstance(e, TaichiCompilationError):
+        raise TaichiCompilationError(_position_text(ctx, node) + traceback.format_exc()) from None
+    raise type(e)(_position_text(ctx, node) + str(e)) from None
+
+
+def _current_src_info(self):
+    info = self.src_info_stack[-1]
+    return info.text() if type(info) is _Position else info
+
+
+def _getsourcelines(obj):
+    code = getattr(obj, "__code__", None)
+    if code is None:
+        return _originals["getsourcelines"](obj)
+    found = _sources.get(code)
+    if found is None:
+        found = _sources[code] = _originals["getsourcelines"](obj)
+    lines, first = found
+    return list(lines), first
+
+
+def available() -> bool:
+    """Whether this Taichi is one the patch was checked against, and it is not turned off."""
+    if os.environ.get("TAICHI_ANIM_PLAIN_FRONTEND", "") not in ("", "0"):
+        return False
+    return tuple(ti.__version__) in CHECKED_VERSIONS
+
+
+def install() -> bool:
+    """Install the cheaper front end once per process; returns whether it is on."""
+    global _installed
+    if _installed or not available():
+        return _installed
+    from taichi.lang import kernel_impl
+    from taichi.lang.ast import ast_transformer_utils as utils
+
+    _originals.update(
+        get_pos_info=utils.ASTTransformerContext.get_pos_info,
+        builder_call=utils.Builder.__call__,
+        current_src_info=impl.PyTaichi.get_current_src_info,
+        getsourcelines=kernel_impl.getsourcelines,
+    )
+    utils.ASTTransformerContext.get_pos_info = _position_text
+    utils.Builder.__call__ = _builder_call
+    impl.PyTaichi.get_current_src_info = _current_src_info
+    kernel_impl.getsourcelines = _getsourcelines
+    _installed = True
+    return True
+
+
+def uninstall() -> None:
+    """Put Taichi's own front end back (for tests that compare the two)."""
+    global _installed
+    if not _installed:
+        return
+    from taichi.lang import kernel_impl
+    from taichi.lang.ast import ast_transformer_utils as utils
+
+    utils.ASTTransformerContext.get_pos_info = _originals["get_pos_info"]
+    utils.Builder.__call__ = _originals["builder_call"]
+    impl.PyTaichi.get_current_src_info = _originals["current_src_info"]
+    kernel_impl.getsourcelines = _originals["getsourcelines"]
+    _installed = False

@@ -1,0 +1,118 @@
+"""The cheaper Taichi front end (taichi_anim/frontend.py): the same source positions for every node it
+visits, the same error messages, and the same offline cache entries as Taichi's own front end."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import taichi as ti
+
+import taichi_anim as ta
+from taichi_anim import frontend
+
+ROOT = Path(__file__).resolve().parents[1]
+
+pytestmark = pytest.mark.skipif(not frontend.available(), reason="front end patch not checked for this Taichi")
+
+
+@ti.func
+def _spread(v, k: ti.template()):
+    out = ti.Vector.zero(float, 3)
+    for c in ti.static(range(3)):
+        out[c] = v[c] * (k + c)
+    return out
+
+
+def _kernels():
+    """A kernel with the constructs whose positions Taichi formats differently: one-line and multi-line
+    statements, for/if/while headers, static unrolls and an inlined function called twice."""
+    x = ti.Vector.field(3, float, 8)
+
+    @ti.kernel
+    def k(s: float) -> float:
+        acc = 0.0
+        for i in range(8):
+            v = ti.Vector([i, s, 1.0])
+            if i % 2 == 0:
+                x[i] = _spread(v, 1) + _spread(
+                    v,
+                    2,
+                )
+            j = 0
+            while j < 2:
+                j += 1
+            acc += x[i].sum()
+        return acc
+
+    return k
+
+
+def test_every_visited_position_is_taichis_own_text():
+    seen = []
+    init = frontend._Position.__init__
+
+    def record(self, ctx, node):
+        init(self, ctx, node)
+        seen.append((ctx, node))
+
+    frontend._Position.__init__ = record
+    try:
+        _kernels()(0.5)
+    finally:
+        frontend._Position.__init__ = init
+    assert len(seen) > 100
+    original = frontend._originals["get_pos_info"]
+    for ctx, node in seen:
+        assert frontend._position_text(ctx, node) == original(ctx, node)
+
+
+def _error_message() -> str:
+    @ti.kernel
+    def broken() -> float:
+        y = 1.0
+        return y + undefined_name  # noqa: F821
+
+    with pytest.raises(Exception) as caught:
+        broken()
+    return f"{type(caught.value).__name__}: {caught.value}"
+
+
+def test_errors_read_as_with_taichis_front_end():
+    patched = _error_message()
+    frontend.uninstall()
+    try:
+        ta.init("cpu", precision="f64")
+        plain = _error_message()
+    finally:
+        frontend.install()
+    assert "undefined_name" in patched and "^" in patched
+    assert patched == plain
+
+
+_CACHE_RUN = """
+import taichi as ti, taichi_anim as ta
+from taichi_anim.scenes import make_scene
+ta.init("cpu")
+scene = make_scene("cloth", resolution=6)
+scene.advance_frame()
+ti.sync()
+"""
+
+
+def test_offline_cache_entries_are_the_same(tmp_path):
+    """A scene stepped with the patched front end fills a cache; Taichi's own front end on that cache
+    then compiles no kernel of its own: the IR is the same (its hash, the cache key, leaves the
+    positions out; the first test checks those)."""
+
+    def run(plain: bool) -> set[str]:
+        env = dict(os.environ, TI_OFFLINE_CACHE_FILE_PATH=str(tmp_path), PYTHONPATH=str(ROOT))
+        env["TAICHI_ANIM_PLAIN_FRONTEND"] = "1" if plain else "0"
+        done = subprocess.run([sys.executable, "-c", _CACHE_RUN], env=env, capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr[-2000:]
+        return {p.name for p in tmp_path.rglob("*.tic")}
+
+    patched = run(plain=False)
+    assert len(patched) > 5
+    assert run(plain=True) == patched
