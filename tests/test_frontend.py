@@ -14,7 +14,7 @@ from taichi_anim import frontend
 
 ROOT = Path(__file__).resolve().parents[1]
 
-pytestmark = pytest.mark.skipif(not frontend.available(), reason="front end patch not checked for this Taichi")
+pytestmark = pytest.mark.skipif(not frontend.available(), reason="patch not checked on this Taichi")
 
 
 @ti.func
