@@ -21,7 +21,8 @@ d f_n / d u_n = rho C_d A |u_n| with d u_n / d v_b = -n^T / 3, so per vertex pai
 S = (h rho C_d A |u_n| / 9) (1 1^T) (x) n n^T is symmetric positive semi-definite (rank one, stored as its
 factor: rank_one.py): damping of the cloth's motion normal to itself, which is what keeps a fluttering
 sheet stable at large steps. A and n are held fixed over the step (explicit in position, K_x = 0); the
-tangential drag and the lift are explicit. Degenerate triangles (|c| = 0) and still air (s = 0) give exactly zero force, not NaN.
+tangential drag and the lift are explicit. Degenerate triangles (|c| = 0) and still air (s = 0) give
+exactly zero force, not NaN.
 """
 
 import math
