@@ -24,12 +24,14 @@ PACKAGE_DIR = Path(__file__).resolve().parent.parent / PACKAGE
 # "" is the package's own __init__ (the public names) only.
 LAYERS = [
     # foundations: errors, argument checks, the Taichi runtime, the failure policy, signals
-    # (capacity: the size buckets and field pool the runtime's init switches)
+    # (capacity: the size buckets and field pool the runtime's init switches; frontend: Taichi's front end
+    # made cheaper, installed by the runtime)
     (
         "errors",
         "validate",
         "rng",
         "capacity",
+        "frontend",
         "runtime",
         "health",
         "interrupts",

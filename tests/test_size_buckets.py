@@ -17,7 +17,7 @@ import taichi as ti
 import taichi_anim as ta
 from taichi_anim import capacity
 from taichi_anim.errors import ParameterError
-from taichi_anim.scenes import cloth, fountain, spheres
+from taichi_anim.scenes import cloth, fountain, layers, spheres
 
 from .helpers import ulp_tolerance
 
@@ -33,9 +33,17 @@ SIZES = {
     # 3000 and 3500 spheres: the demo's column is then 25 layers high either way, so its box (a collider's
     # shape is a compile-time constant) is the same; 5000 fill the next bucket.
     "spheres": ({"particles": 3000}, {"particles": 3500}, {"particles": 5000}),
+    # Two sheets with self-contact (its pair lists, guard and BVHs over triangles and edges) on a ball: 392
+    # and 450 vertices, 676 and 784 triangles, 1066 and 1232 edges, 2076 and 2404 springs; 17: 578 vertices.
+    "layers": ({"resolution": 14}, {"resolution": 15}, {"resolution": 17}),
 }
-BUILD = {"fountain": {}, "cloth": {"integrator": "implicit_euler"}, "spheres": {"steps_per_frame": 2}}
-SCENES = {"fountain": fountain, "cloth": cloth, "spheres": spheres}
+BUILD = {
+    "fountain": {},
+    "cloth": {"integrator": "implicit_euler"},
+    "spheres": {"steps_per_frame": 2},
+    "layers": {"layers": 2},
+}
+SCENES = {"fountain": fountain, "cloth": cloth, "spheres": spheres, "layers": layers}
 
 _RUNNER = """
 import gc, json, sys
@@ -85,7 +93,7 @@ def _final(name: str, buckets: bool, frames: int):
     stepper = ta.Stepper(scene.model, scene.integrator)
     for _ in range(frames):
         stepper.step(scene.state, scene.dt, scene.substeps)
-    return scene
+    return scene, stepper
 
 
 @pytest.fixture
@@ -94,15 +102,15 @@ def buckets_reset():
     capacity.set_enabled(None)
 
 
-@pytest.mark.parametrize("name, frames", [("fountain", 30), ("cloth", 10), ("spheres", 10)])
+@pytest.mark.parametrize("name, frames", [("fountain", 30), ("cloth", 10), ("spheres", 10), ("layers", 130)])
 def test_buckets_run_the_same_physics(buckets_reset, name, frames):
     """The live count read at run time instead of a constant: the same arithmetic, compiled apart, so equal
     within round-off (the cloth's PCG also stops after the same iterations)."""
-    exact = _final(name, False, frames)
+    exact, _ = _final(name, False, frames)
     x0, alive0 = exact.state.positions(), exact.state.alive_mask()
     n = exact.model.particle_count
     assert exact.state.particle_x.shape == (n,)
-    bucketed = _final(name, True, frames)
+    bucketed, stepper = _final(name, True, frames)
     model = bucketed.model
     assert model.particle_count == n and model.particle_capacity == capacity.bucket(n) > n
     assert bucketed.state.particle_x.shape == (model.particle_capacity,)
@@ -114,6 +122,10 @@ def test_buckets_run_the_same_physics(buckets_reset, name, frames):
     np.testing.assert_allclose(x1[alive0], x0[alive0], rtol=0, atol=tol)
     # Rows past the live count are never touched: still the zeros the start wrote.
     assert not np.any(bucketed.state.particle_x.to_numpy()[n:])
+    contact = stepper.solver("self-contact")
+    if contact is not None:  # the sheets lie on the ball and on each other: pairs found and guarded
+        assert contact.buckets and contact.tri_boxes.capacity > contact.triangle_count
+        assert contact.read_stats()["guard_pairs"] > 0
 
 
 def test_bucket_sizes_and_switch(buckets_reset):

@@ -52,26 +52,19 @@ import weakref
 import numpy as np
 import taichi as ti
 
-from .. import validate
+from .. import capacity, validate
 from ..errors import DivergenceError, ParameterError
 from ..runtime import compile_with, data_oriented
 from ..spatial.bounds import aabb_point_distance_sq
 from ..spatial.crossings import intersecting_triangle_pairs, triangles_meet
 from ..spatial.distance import point_triangle_closest, segment_segment_closest
 from ..spatial.select import BoxQueryMethod, make_box_query
-from .response import project_spheres
+from .self_contact_guard import SAFE, DisplacementGuard
+from .self_contact_proximity import ProximitySweeps
 
-# A pair found closer than this to zero distance has no direction of its own: it takes the direction it
-# had at the step's start, or the triangle's normal.
-TINY = 1e-12
 # Pairs kept for the proximity sweeps: those within this many thicknesses at the method's proposed end
 # positions (the sweeps move vertices by about a thickness at most).
 KEEP = 1.5
-# A guard pair whose sides moved, relative to each other, by this fraction of their distance at the step's
-# start is treated as one that could have met (a margin for round-off).
-SAFE = 0.9
-# Rounds of holding vertices of unsafe pairs before every vertex is held.
-HOLD_PASSES = 3
 
 
 def mesh_edges(triangles: np.ndarray) -> np.ndarray:
@@ -89,14 +82,8 @@ def incidence(items: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
     return np.cumsum(start).astype(np.int32), rows[order].astype(np.int32)
 
 
-def _field(dtype, data: np.ndarray, n: int = 1):
-    f = ti.field(dtype, len(data)) if n == 1 else ti.Vector.field(n, dtype, len(data))
-    f.from_numpy(data)
-    return f
-
-
 @data_oriented
-class SelfContact:
+class SelfContact(ProximitySweeps, DisplacementGuard):
     """The contact solver for every cloth triangle of `model` (built by the Stepper when the scene asked
     for self-contact). thickness [m]: the separation kept between non-adjacent primitives; friction:
     Coulomb coefficient; iterations: Gauss-Seidel sweeps of the proximity constraints; relaxation: the
@@ -146,62 +133,106 @@ class SelfContact:
         edges = mesh_edges(tri)
         nv, nf, ne = len(used), len(tri), len(edges)
         self.vertex_count, self.triangle_count, self.edge_count = nv, nf, ne
-        self.vertex = _field(ti.i32, used.astype(np.int32))
-        self.tri = _field(ti.i32, tri.astype(np.int32), 3)
-        self.edge = _field(ti.i32, edges.astype(np.int32), 2)
+        # Arrays of capacity rows: the counts, or under capacity buckets (capacity.py) their buckets, from
+        # the model's pool, with the loops running to the live counts read at run time: a cloth of another
+        # size in the same buckets compiles nothing new.
+        self.buckets = model.size_buckets
+        rows = capacity.bucket if self.buckets else int
+        cv, cf, ce = rows(nv), rows(nf), rows(ne)
+        make = self._make = model.new_field
+        self.live = None
+        if self.buckets:
+            self.live = make(self, "self_contact_live", ti.i32, (), (3,))
+            self.live[None] = (nv, nf, ne)
+        self.vertex = self._upload("self_contact_vertex", used, cv)
+        self.tri = self._upload("self_contact_tri", tri, cf, 3)
+        self.edge = self._upload("self_contact_edge", edges, ce, 2)
         vt_start, vt_list = incidence(tri, nv)
         ve_start, ve_list = incidence(edges, nv)
-        self.vt_start, self.vt_list = _field(ti.i32, vt_start), _field(ti.i32, vt_list)
-        self.ve_start, self.ve_list = _field(ti.i32, ve_start), _field(ti.i32, ve_list)
-        self.x0 = ti.Vector.field(3, float, nv)
-        self.x_pred = ti.Vector.field(3, float, nv)
-        self.d_vert = ti.field(float, nv)
-        self.d_tri = ti.field(float, nf)
-        self.d_edge = ti.field(float, ne)
-        self.bound = ti.field(float, nv)
+        self.vt_start = self._upload("self_contact_vt_start", vt_start, cv + 1)
+        self.vt_list = self._upload("self_contact_vt_list", vt_list, 3 * cf)
+        self.ve_start = self._upload("self_contact_ve_start", ve_start, cv + 1)
+        self.ve_list = self._upload("self_contact_ve_list", ve_list, 2 * ce)
+        self.x0 = make(self, "self_contact_x0", float, cv, (3,))
+        self.x_pred = make(self, "self_contact_x_pred", float, cv, (3,))
+        self.d_vert = make(self, "self_contact_d_vert", float, cv)
+        self.d_tri = make(self, "self_contact_d_tri", float, cf)
+        self.d_edge = make(self, "self_contact_d_edge", float, ce)
+        self.bound = make(self, "self_contact_bound", float, cv)
         # Pairs, in slots per query primitive (vertex v: v K .. v K + vt_n[v]; edge e likewise), written in
         # the traversal's order: the lists, and so the sweeps, are the same whatever the thread timing.
         # Every pair found within the two sides' reaches is kept (a guard pair, with its distance at x0
         # [m]); `near` marks those the proximity sweeps treat.
         k = self.slots = pairs_per_vertex
-        self.vt_tri = ti.field(ti.i32, nv * k)
-        self.vt_d = ti.field(float, nv * k)
-        self.vt_near = ti.field(ti.i8, nv * k)
-        self.vt_n = ti.field(ti.i32, nv)
-        self.ee_other = ti.field(ti.i32, ne * k)
-        self.ee_d = ti.field(float, ne * k)
-        self.ee_near = ti.field(ti.i8, ne * k)
-        self.ee_n = ti.field(ti.i32, ne)
-        self.hold = ti.field(ti.i32, nv)
+        self.vt_tri = make(self, "self_contact_vt_tri", ti.i32, cv * k)
+        self.vt_d = make(self, "self_contact_vt_d", float, cv * k)
+        self.vt_near = make(self, "self_contact_vt_near", ti.i8, cv * k)
+        self.vt_n = make(self, "self_contact_vt_n", ti.i32, cv)
+        self.ee_other = make(self, "self_contact_ee_other", ti.i32, ce * k)
+        self.ee_d = make(self, "self_contact_ee_d", float, ce * k)
+        self.ee_near = make(self, "self_contact_ee_near", ti.i8, ce * k)
+        self.ee_n = make(self, "self_contact_ee_n", ti.i32, ce)
+        self.hold = make(self, "self_contact_hold", ti.i32, cv)
         # The guard's groups: pairs flagged unsafe join their vertices (union-find); each group keeps its
         # momentum (`_place`). Per vertex: anchored (held absolutely), the guard's input position, its
         # group's root, and per root the free mass [kg], momentum deficit [kg m] and a fixed flag.
-        self.vt_unsafe = ti.field(ti.i8, nv * k)
-        self.ee_unsafe = ti.field(ti.i8, ne * k)
-        self.anchor = ti.field(ti.i32, nv)
-        self.parent = ti.field(ti.i32, nv)
-        self.x_in = ti.Vector.field(3, float, nv)
-        self.g_root = ti.field(ti.i32, nv)
-        self.g_mass = ti.field(float, nv)
-        self.g_deficit = ti.Vector.field(3, float, nv)
-        self.g_fixed = ti.field(ti.i32, nv)
+        self.vt_unsafe = make(self, "self_contact_vt_unsafe", ti.i8, cv * k)
+        self.ee_unsafe = make(self, "self_contact_ee_unsafe", ti.i8, ce * k)
+        self.anchor = make(self, "self_contact_anchor", ti.i32, cv)
+        self.parent = make(self, "self_contact_parent", ti.i32, cv)
+        self.x_in = make(self, "self_contact_x_in", float, cv, (3,))
+        self.g_root = make(self, "self_contact_g_root", ti.i32, cv)
+        self.g_mass = make(self, "self_contact_g_mass", float, cv)
+        self.g_deficit = make(self, "self_contact_g_deficit", float, cv, (3,))
+        self.g_fixed = make(self, "self_contact_g_fixed", ti.i32, cv)
         # [0, 1] vertex-triangle and edge-edge proximity pairs of the last step; [2] vertex-steps held by
         # their bound (a running total); [3] a sticky overflow flag; [4, 5] guard pairs of the last step;
         # [6] steps that held every vertex (a running total); [7] violations in the current pass; [8]
         # vertices past their reach after the first round (a second round looks again from there).
-        self.count = ti.field(ti.i32, 9)
-        self.reach = ti.field(float, nv)  # per vertex [m]: how far its queries look
-        self.tri_reach = ti.field(float, nf)
-        self.edge_reach = ti.field(float, ne)
-        # Box structures over triangles and edges (a BVH, or brute force for small cloths: spatial/select.py).
-        self.tri_boxes = make_box_query(nf, method=broad_phase)
-        self.edge_boxes = make_box_query(ne, method=broad_phase)
+        self.count = make(self, "self_contact_count", ti.i32, 9)
+        if self.buckets:  # running totals: a pooled field holds what its last owner left
+            self.count.from_numpy(np.zeros(9, dtype=np.int32))
+        self.reach = make(self, "self_contact_reach", float, cv)  # per vertex [m]: how far its queries look
+        self.tri_reach = make(self, "self_contact_tri_reach", float, cf)
+        self.edge_reach = make(self, "self_contact_edge_reach", float, ce)
+        # Box structures over triangles and edges (a BVH, or brute force for small cloths: spatial/select.py),
+        # chosen by capacity.
+        self.tri_boxes = make_box_query(cf, method=broad_phase, make=make)
+        self.edge_boxes = make_box_query(ce, method=broad_phase, make=make)
         self._built = False
         # Made after ti.init, so `float` resolves to the chosen precision.
         vec3 = ti.types.vector(3, float)
         self._acc = ti.types.struct(x=vec3, lo=vec3, hi=vec3, r=float, d=float, n=ti.i32)
         self.stats = {"vertex_triangle_pairs": 0, "edge_edge_pairs": 0, "clamped": 0}
         self.start_crossing_pairs = 0  # crossing triangle pairs found at the last start checked
+
+    def _upload(self, role: str, data: np.ndarray, rows: int, n: int = 1):
+        """An int32 field of `rows` rows (n columns) holding `data` (zero rows past it)."""
+        f = self._make(self, role, ti.i32, rows, () if n == 1 else (n,))
+        f.from_numpy(capacity.padded(np.asarray(data).astype(np.int32), rows, np.int32))
+        return f
+
+    @ti.func
+    def verts(self):
+        """Vertices in the contact (the live count under buckets: a field read; else a constant)."""
+        if ti.static(self.buckets):
+            return self.live[None][0]
+        else:
+            return self.vertex_count
+
+    @ti.func
+    def tris(self):
+        if ti.static(self.buckets):
+            return self.live[None][1]
+        else:
+            return self.triangle_count
+
+    @ti.func
+    def edges(self):
+        if ti.static(self.buckets):
+            return self.live[None][2]
+        else:
+            return self.edge_count
 
     def settings(self) -> dict:
         return {
@@ -322,12 +353,12 @@ class SelfContact:
 
     @ti.kernel
     def _begin(self, state: ti.template()):
-        for v in range(self.vertex_count):
+        for v in range(self.verts()):
             self.x0[v] = state.particle_x[self.vertex[v]]
 
     @ti.kernel
     def _boxes(self, model: ti.template(), state: ti.template()):
-        for v in range(self.vertex_count):
+        for v in range(self.verts()):
             x = state.particle_x[self.vertex[v]]
             self.x_pred[v] = x
             # Reach: a pair farther apart than the reaches of its two sides cannot meet while every vertex
@@ -335,14 +366,14 @@ class SelfContact:
             # sides also sum to KEEP thicknesses plus both displacements, so every pair that can come
             # within KEEP thicknesses at the end is found.
             self.reach[v] = (x - self.x0[v]).norm() + 0.5 * KEEP * self.thickness
-        for f in range(self.triangle_count):
+        for f in range(self.tris()):
             t = self.tri[f]
             a, b, c = self._tri_x0(f)
             r = ti.max(self.reach[t[0]], self.reach[t[1]], self.reach[t[2]])
             self.tri_reach[f] = r
             self.tri_boxes.prim_lo[f] = ti.min(a, b, c) - r
             self.tri_boxes.prim_hi[f] = ti.max(a, b, c) + r
-        for e in range(self.edge_count):
+        for e in range(self.edges()):
             i, j = self.edge[e][0], self.edge[e][1]
             p, q = self.x0[i], self.x0[j]
             r = ti.max(self.reach[i], self.reach[j])
@@ -432,13 +463,13 @@ class SelfContact:
     @compile_with(cfg_optimization=False)
     @ti.kernel
     def _query(self):
-        for f in range(self.triangle_count):
+        for f in range(self.tris()):
             self.d_tri[f] = self.tri_reach[f]
-        for e in range(self.edge_count):
+        for e in range(self.edges()):
             self.d_edge[e] = self.edge_reach[e]
         # A pair (vertex v, triangle T) is visited when v's box, grown by its reach, overlaps T's box grown
         # by T's: one that is not lies farther than r_v + r_T, more than both can move.
-        for v in range(self.vertex_count):
+        for v in range(self.verts()):
             r = self.reach[v]
             ret = self._acc(x=self.x0[v], lo=self.x0[v], hi=self.x0[v], r=r, d=r, n=0)
             self.tri_boxes.for_each_overlap(v, ret.x - r, ret.x + r, self._visit_triangle, ret)
@@ -450,7 +481,7 @@ class SelfContact:
     @ti.kernel
     def _query_edges(self):
         # A kernel of its own: one with both traversals took several times as long to compile.
-        for e in range(self.edge_count):
+        for e in range(self.edges()):
             p, q = self.x0[self.edge[e][0]], self.x0[self.edge[e][1]]
             r = self.edge_reach[e]
             ret = self._acc(x=p, lo=ti.min(p, q), hi=ti.max(p, q), r=r, d=r, n=0)
@@ -460,7 +491,7 @@ class SelfContact:
 
     @ti.kernel
     def _bounds(self):
-        for v in range(self.vertex_count):
+        for v in range(self.verts()):
             d = self.d_vert[v]
             for k in range(self.vt_start[v], self.vt_start[v + 1]):
                 d = ti.min(d, self.d_tri[self.vt_list[k]])
@@ -472,329 +503,15 @@ class SelfContact:
             self.count[k] = 0
         # Statistics, summed serially: a parallel loop would contend for the four counters.
         ti.loop_config(serialize=True)
-        for v in range(self.vertex_count):
+        for v in range(self.verts()):
             self.count[4] += self.vt_n[v]
             for j in range(self.vt_n[v]):
                 self.count[0] += ti.cast(self.vt_near[v * self.slots + j], ti.i32)
         ti.loop_config(serialize=True)
-        for e in range(self.edge_count):
+        for e in range(self.edges()):
             self.count[5] += self.ee_n[e]
             for j in range(self.ee_n[e]):
                 self.count[1] += ti.cast(self.ee_near[e * self.slots + j], ti.i32)
-
-    # -- proximity constraints ---------------------------------------------------------------------------
-
-    @ti.func
-    def _w(self, model: ti.template(), v):
-        return model.inv_mass(self.vertex[v])
-
-    @ti.func
-    def _pair_correction(self, model: ti.template(), state: ti.template(), idx, coef, side):
-        """Push the pair's two sides apart to the thickness: idx holds four local vertices, coef their
-        weights (positive on the first side, negative on the second, summing to zero), so the gap is
-        sum coef_k x_k; side is the unit direction from side two to side one at the step's start, the
-        fallback for a gap of zero length."""
-        gap = ti.Vector.zero(float, 3)
-        gap0 = ti.Vector.zero(float, 3)
-        for k in ti.static(range(4)):
-            gap += coef[k] * state.particle_x[self.vertex[idx[k]]]
-            gap0 += coef[k] * self.x0[idx[k]]
-        d = gap.norm()
-        n = side
-        if d > TINY:
-            n = gap / d
-            if n.dot(gap0) < 0.0:
-                n = -n  # crossed since the step's start: push back to the start's side
-                d = -d
-        c = self.thickness - d
-        if c > 0.0:
-            wsum = 0.0
-            for k in ti.static(range(4)):
-                wsum += self._w(model, idx[k]) * coef[k] * coef[k]
-            if wsum > 0.0:
-                s = self.relaxation * c / wsum
-                # Friction: the pair's relative tangential motion over the step shrinks by at most mu c.
-                rel = gap - gap0
-                rel_t = rel - rel.dot(n) * n
-                slip = rel_t.norm()
-                cut = ti.min(self.relaxation * self.friction * c, slip) / ti.max(slip, TINY) / wsum
-                for k in ti.static(range(4)):
-                    w = self._w(model, idx[k]) * coef[k]
-                    if w != 0.0:
-                        state.particle_x[self.vertex[idx[k]]] += w * (s * n - cut * rel_t)
-
-    @ti.func
-    def _vertex_triangle(self, model: ti.template(), state: ti.template(), v, f):
-        t = self.tri[f]
-        a = state.particle_x[self.vertex[t[0]]]
-        b = state.particle_x[self.vertex[t[1]]]
-        c = state.particle_x[self.vertex[t[2]]]
-        w = point_triangle_closest(state.particle_x[self.vertex[v]], a, b, c)
-        a0, b0, c0 = self._tri_x0(f)
-        side = (b0 - a0).cross(c0 - a0)
-        if side.dot(self.x0[v] - a0) < 0.0:
-            side = -side
-        side = side / ti.max(side.norm(), TINY)
-        idx = ti.Vector([v, t[0], t[1], t[2]])
-        coef = ti.Vector([1.0, -w[0], -w[1], -w[2]])
-        self._pair_correction(model, state, idx, coef, side)
-
-    @ti.func
-    def _edge_edge(self, model: ti.template(), state: ti.template(), e, g):
-        i0, i1, j0, j1 = self.edge[e][0], self.edge[e][1], self.edge[g][0], self.edge[g][1]
-        st = segment_segment_closest(
-            state.particle_x[self.vertex[i0]],
-            state.particle_x[self.vertex[i1]],
-            state.particle_x[self.vertex[j0]],
-            state.particle_x[self.vertex[j1]],
-        )
-        idx = ti.Vector([i0, i1, j0, j1])
-        coef = ti.Vector([1.0 - st[0], st[0], -(1.0 - st[1]), -st[1]])
-        gap0 = coef[0] * self.x0[i0] + coef[1] * self.x0[i1] + coef[2] * self.x0[j0] + coef[3] * self.x0[j1]
-        side = (self.x0[i1] - self.x0[i0]).cross(self.x0[j1] - self.x0[j0])
-        if side.norm_sqr() < TINY * TINY:
-            side = gap0  # parallel edges: the direction between them at the step's start
-        if side.dot(gap0) < 0.0:
-            side = -side
-        side = side / ti.max(side.norm(), TINY)
-        self._pair_correction(model, state, idx, coef, side)
-
-    @ti.kernel
-    def _proximity(self, model: ti.template(), state: ti.template(), t_end: float):
-        # Gauss-Seidel sweeps in one serial task: each pair's correction is applied at once (it sums to
-        # zero momentum), the fixed order makes runs reproducible, and one launch replaces several.
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            for _sweep in range(self.iterations):
-                for v in range(self.vertex_count):
-                    for j in range(self.vt_n[v]):
-                        k = v * self.slots + j
-                        if self.vt_near[k]:
-                            self._vertex_triangle(model, state, v, self.vt_tri[k])
-                for e in range(self.edge_count):
-                    for j in range(self.ee_n[e]):
-                        k = e * self.slots + j
-                        if self.ee_near[k]:
-                            self._edge_edge(model, state, e, self.ee_other[k])
-                if ti.static(model.collider_count > 0):
-                    # A contact must not push a vertex into a collider (the lower of two sheets on a ball).
-                    for v in range(self.vertex_count):
-                        i = self.vertex[v]
-                        if model.inv_mass(i) == 0.0:
-                            continue  # pinned: kinematic, colliders do not move it
-                        x, _v = project_spheres(
-                            model.colliders,
-                            state.particle_x[i],
-                            state.particle_v[i],
-                            model.radius(i),
-                            -1.0,
-                            t_end,
-                        )
-                        state.particle_x[i] = x
-
-    @ti.func
-    def _moves_apart(self, state: ti.template(), i, j):
-        """|displacement of local vertex i - displacement of local vertex j| over the step [m]."""
-        di = state.particle_x[self.vertex[i]] - self.x0[i]
-        dj = state.particle_x[self.vertex[j]] - self.x0[j]
-        return (di - dj).norm()
-
-    @ti.func
-    def _violations(
-        self, model: ti.template(), state: ti.template(), mark: ti.template(), final: ti.template()
-    ):
-        """Count the guard pairs that could have met in the step: a pair at distance d at x0 cannot meet
-        while every material point of one side moves less than d relative to every point of the other,
-        and those relative motions are convex combinations of the vertices' (max over vertex pairs).
-        With mark, their vertices are held and the pairs flagged (to join their groups). A vertex moved
-        past its reach counts only in the final round (before it, `solve` looks again from there); marked
-        there, it is held where its bound says (anchored: its group keeps no common motion)."""
-        self.count[7] = 0
-        if ti.static(final):
-            for v in range(self.vertex_count):
-                # The proximity sweeps, collider projections or a group's common motion may have moved a
-                # vertex past its reach, the premise of "a pair not found cannot meet".
-                if (state.particle_x[self.vertex[v]] - self.x0[v]).norm() >= self.reach[v]:
-                    if self._w(model, v) > 0.0:
-                        self.count[7] += 1
-                        if ti.static(mark):
-                            self.hold[v] = 1
-                            self.anchor[v] = 1
-        for v in range(self.vertex_count):
-            for j in range(self.vt_n[v]):
-                k = v * self.slots + j
-                t = self.tri[self.vt_tri[k]]
-                rel = ti.max(
-                    self._moves_apart(state, v, t[0]),
-                    self._moves_apart(state, v, t[1]),
-                    self._moves_apart(state, v, t[2]),
-                )
-                free = self._w(model, v) + self._w(model, t[0]) + self._w(model, t[1]) + self._w(model, t[2])
-                if rel >= SAFE * self.vt_d[k] and free > 0.0:
-                    self.count[7] += 1
-                    if ti.static(mark):
-                        self.vt_unsafe[k] = ti.i8(1)
-                        self.hold[v] = 1
-                        for i in ti.static(range(3)):
-                            self.hold[t[i]] = 1
-        for e in range(self.edge_count):
-            for j in range(self.ee_n[e]):
-                k = e * self.slots + j
-                g = self.ee_other[k]
-                a, b, c, d = self.edge[e][0], self.edge[e][1], self.edge[g][0], self.edge[g][1]
-                rel = ti.max(
-                    ti.max(self._moves_apart(state, a, c), self._moves_apart(state, a, d)),
-                    ti.max(self._moves_apart(state, b, c), self._moves_apart(state, b, d)),
-                )
-                free = self._w(model, a) + self._w(model, b) + self._w(model, c) + self._w(model, d)
-                if rel >= SAFE * self.ee_d[k] and free > 0.0:
-                    self.count[7] += 1
-                    if ti.static(mark):
-                        self.ee_unsafe[k] = ti.i8(1)
-                        self.hold[a] = 1
-                        self.hold[b] = 1
-                        self.hold[c] = 1
-                        self.hold[d] = 1
-
-    @ti.func
-    def _find(self, v):
-        """The root of local vertex v's group (path halving; serial callers only)."""
-        while self.parent[v] != v:
-            self.parent[v] = self.parent[self.parent[v]]
-            v = self.parent[v]
-        return v
-
-    @ti.func
-    def _union(self, a, b):
-        ra, rb = self._find(a), self._find(b)
-        if ra < rb:
-            self.parent[rb] = ra
-        elif rb < ra:
-            self.parent[ra] = rb
-
-    @ti.func
-    def _join_groups(self):
-        """Join the four vertices of every flagged pair into one group (union-find, serial: a fixed order
-        and no contention)."""
-        ti.loop_config(serialize=True)
-        for v in range(self.vertex_count):
-            for j in range(self.vt_n[v]):
-                k = v * self.slots + j
-                if self.vt_unsafe[k]:
-                    t = self.tri[self.vt_tri[k]]
-                    for i in ti.static(range(3)):
-                        self._union(v, t[i])
-        ti.loop_config(serialize=True)
-        for e in range(self.edge_count):
-            for j in range(self.ee_n[e]):
-                k = e * self.slots + j
-                if self.ee_unsafe[k]:
-                    g = self.ee_other[k]
-                    a = self.edge[e][0]
-                    self._union(a, self.edge[e][1])
-                    self._union(a, self.edge[g][0])
-                    self._union(a, self.edge[g][1])
-
-    @ti.func
-    def _held_step(self, v):
-        """Local vertex v's guard input displacement from x0, shortened to its bound."""
-        step = self.x_in[v] - self.x0[v]
-        length = step.norm()
-        b = self.bound[v]
-        if length > b:
-            step *= b / length
-        return step
-
-    @ti.func
-    def _place(self, model: ti.template(), state: ti.template()):
-        """Held vertices, from the guard's input positions: each moved back to within its bound of x0,
-        then every vertex of its group shifted by the group's momentum deficit over its mass, so the
-        group keeps its momentum (a perfectly inelastic contact: the group's mass-weighted common
-        motion). The shift is common to the group, so every pair inside it stays safe; a group with a
-        pinned or anchored vertex (external: it takes the momentum) is not shifted."""
-        for v in range(self.vertex_count):
-            self.g_mass[v] = 0.0
-            self.g_deficit[v] = ti.Vector.zero(float, 3)
-            self.g_fixed[v] = 0
-        # Sums in a fixed serial order: the same run gives the same bits (no float atomics).
-        ti.loop_config(serialize=True)
-        for v in range(self.vertex_count):
-            if self.hold[v]:
-                r = self._find(v)
-                self.g_root[v] = r
-                w = self._w(model, v)
-                if w > 0.0 and self.anchor[v] == 0:
-                    self.g_mass[r] += 1.0 / w
-                    self.g_deficit[r] += (self._held_step(v) - (self.x_in[v] - self.x0[v])) / w
-                else:
-                    self.g_fixed[r] = 1
-        for v in range(self.vertex_count):
-            i = self.vertex[v]
-            if self.hold[v] and model.inv_mass(i) > 0.0:
-                x = self.x0[v] + self._held_step(v)
-                r = self.g_root[v]
-                if self.g_fixed[r] == 0 and self.g_mass[r] > 0.0:
-                    x -= self.g_deficit[r] / self.g_mass[r]
-                if (x - self.x_in[v]).norm_sqr() > 0.0:
-                    ti.atomic_add(self.count[2], 1)
-                state.particle_x[i] = x
-
-    @ti.func
-    def _clamp_all(self, model: ti.template(), state: ti.template()):
-        """The last resort, if unsafe pairs are left or a pair list overflowed: every vertex moved back
-        within its bound of the step's start (every pair then moves by less than 2 gamma d < d; this one
-        does not keep momentum). Kinematic vertices (pinned, attached) go where they are driven: a pinned
-        vertex does not move, one that a user animates is not guarded."""
-        for v in range(self.vertex_count):
-            i = self.vertex[v]
-            if (self.count[7] > 0 or self.count[3] > 0) and model.inv_mass(i) > 0.0:
-                step = state.particle_x[i] - self.x0[v]
-                length = step.norm()
-                b = self.bound[v]
-                if length > b:
-                    state.particle_x[i] = self.x0[v] + step * (b / length)
-                    ti.atomic_add(self.count[2], 1)
-
-    # See _query.
-    @compile_with(cfg_optimization=False)
-    @ti.kernel
-    def _finish(self, model: ti.template(), state: ti.template(), h: float, final: ti.template()):
-        for v in range(self.vertex_count):
-            self.hold[v] = 0
-            self.anchor[v] = 0
-            self.parent[v] = v
-            self.x_in[v] = state.particle_x[self.vertex[v]]
-            for j in range(self.vt_n[v]):
-                self.vt_unsafe[v * self.slots + j] = ti.i8(0)
-        for e in range(self.edge_count):
-            for j in range(self.ee_n[e]):
-                self.ee_unsafe[e * self.slots + j] = ti.i8(0)
-        # Hold the vertices of pairs that could have met, with their groups' common motion, re-check
-        # (a group's motion can make a pair to its outside fast), and after HOLD_PASSES hold every
-        # vertex within its bound: all held, every pair is safe (gamma < 1/2).
-        if ti.static(self.guard):
-            for _pass in ti.static(range(HOLD_PASSES)):
-                self._violations(model, state, True, final)
-                self._join_groups()
-                self._place(model, state)
-            self._violations(model, state, False, final)
-            if self.count[7] > 0:
-                self.count[6] += 1
-            self._clamp_all(model, state)
-            if ti.static(not final):
-                # Vertices past their reach: `solve` finds the pairs again from these positions.
-                self.count[8] = 0
-                for v in range(self.vertex_count):
-                    if (state.particle_x[self.vertex[v]] - self.x0[v]).norm() >= self.reach[v]:
-                        if self._w(model, v) > 0.0:
-                            self.count[8] += 1
-        for v in range(self.vertex_count):
-            i = self.vertex[v]
-            x = state.particle_x[i]
-            if (x - self.x_pred[v]).norm_sqr() > 0.0:
-                # The corrections act as an inelastic impulse: the velocity keeps the method's update plus
-                # the displacement the contacts added (x_pred: the positions this round started from).
-                state.particle_v[i] += (x - self.x_pred[v]) / h
 
 
 def self_contact_options(

@@ -41,6 +41,7 @@ import taichi as ti
 from taichi.lang import impl
 
 from .. import validate
+from ..capacity import plain
 from ..errors import ParameterError
 from ..runtime import backend_name, compile_with, data_oriented, float_dtype, serial_loops
 from .bounds import INV_DIR_PARALLEL, aabb_overlap, aabb_point_distance_sq, aabb_ray, aabb_surface_area
@@ -110,7 +111,9 @@ class BVH:
     its cost after the last build (> 1).
     """
 
-    def __init__(self, capacity: int, *, rebuild_ratio: float = REBUILD_RATIO):
+    def __init__(self, capacity: int, *, rebuild_ratio: float = REBUILD_RATIO, make=plain):
+        """make(owner, role, dtype, shape, dims): the allocator (a model's pool under capacity buckets,
+        capacity.py; default: new fields)."""
         self.capacity = validate.count("capacity", capacity, 1)
         # Per box: 19 floats (boxes, node records, costs) and 46 bytes of int32 ids, codes and links.
         validate.capacity(
@@ -127,36 +130,36 @@ class BVH:
         c = self.capacity
         self.leaf_base = c - 1
         inner = max(c - 1, 1)  # Taichi refuses zero-sized fields (capacity 1 has no internal node)
-        self.prim_lo = ti.Vector.field(3, float, c)
-        self.prim_hi = ti.Vector.field(3, float, c)
+        self.prim_lo = make(self, "bvh_prim_lo", float, c, (3,))
+        self.prim_hi = make(self, "bvh_prim_hi", float, c, (3,))
         # Internal node t holds its two children's boxes (rows lo_a, hi_a, lo_b, hi_b): expanding a node
         # reads one record. node_parent[x] = 2 * parent + side (side 0: child a, 1: child b), -1 root.
-        self.node_box = ti.Matrix.field(4, 3, float, inner)
-        self.node_child = ti.Vector.field(2, ti.i32, inner)
-        self.node_parent = ti.field(ti.i32, 2 * c - 1)
-        self.root_box = ti.Vector.field(3, float, 2)
-        self.node_cost = ti.field(float, inner)  # sum of internal areas in the subtree
-        self.node_visits = ti.field(ti.i32, inner)
-        self.prim_id = ti.field(ti.i32, c)
-        self.code = ti.field(ti.i32, c)
-        self._code_tmp = ti.field(ti.i32, c)
-        self._id_tmp = ti.field(ti.i32, c)
-        self._centre_box = ti.Vector.field(3, float, 2)
+        self.node_box = make(self, "bvh_node_box", float, inner, (4, 3))
+        self.node_child = make(self, "bvh_node_child", ti.i32, inner, (2,))
+        self.node_parent = make(self, "bvh_node_parent", ti.i32, 2 * c - 1)
+        self.root_box = make(self, "bvh_root_box", float, 2, (3,))
+        self.node_cost = make(self, "bvh_node_cost", float, inner)  # sum of internal areas in the subtree
+        self.node_visits = make(self, "bvh_node_visits", ti.i32, inner)
+        self.prim_id = make(self, "bvh_prim_id", ti.i32, c)
+        self.code = make(self, "bvh_code", ti.i32, c)
+        self._code_tmp = make(self, "bvh_code_tmp", ti.i32, c)
+        self._id_tmp = make(self, "bvh_id_tmp", ti.i32, c)
+        self._centre_box = make(self, "bvh_centre_box", float, 2, (3,))
         self._blocks_max = (c + SORT_BLOCK - 1) // SORT_BLOCK
-        self._hist = ti.field(ti.i32, RADIX * self._blocks_max)
-        self._hist_start = ti.field(ti.i32, RADIX * self._blocks_max + 1)
+        self._hist = make(self, "bvh_hist", ti.i32, RADIX * self._blocks_max)
+        self._hist_start = make(self, "bvh_hist_start", ti.i32, RADIX * self._blocks_max + 1)
         self._serial = serial_loops(c)
-        self._scan = PrefixSum(RADIX * self._blocks_max, self._serial)
-        self.count = ti.field(ti.i32, ())
-        self.root = ti.field(ti.i32, ())
-        self.quality = ti.field(float, ())  # surface-area cost of the current boxes
-        self.built_quality = ti.field(float, ())  # ... right after the last build
+        self._scan = PrefixSum(RADIX * self._blocks_max, self._serial, make)
+        self.count = make(self, "bvh_count", ti.i32, ())
+        self.root = make(self, "bvh_root", ti.i32, ())
+        self.quality = make(self, "bvh_quality", float, ())  # surface-area cost of the current boxes
+        self.built_quality = make(self, "bvh_built_quality", float, ())  # ... right after the last build
         self.n = 0
         self.build_count = 0
         self._cuda = impl.current_cfg().arch == ti.cuda
         # Refit: a serial sweep in reverse pre-order on the CPU, the parallel climb on GPUs.
         self._climb = backend_name() != "cpu"
-        self.refit_order = ti.field(ti.i32, inner)
+        self.refit_order = make(self, "bvh_refit_order", ti.i32, inner)
 
     # ---------------------------------------------------------------------------------------------
     # Python scope

@@ -13,6 +13,7 @@ from enum import Enum
 import taichi as ti
 
 from .. import validate
+from ..capacity import plain
 from ..errors import ParameterError
 from ..runtime import data_oriented
 from .bounds import aabb_overlap, aabb_point_distance_sq
@@ -46,12 +47,12 @@ class BoxQueryMethod(Enum):
 class BruteBoxes:
     """Every box is a candidate of every query: the reference, and the fastest for few boxes."""
 
-    def __init__(self, capacity: int):
+    def __init__(self, capacity: int, *, make=plain):
         self.capacity = validate.count("capacity", capacity, 1)
         validate.capacity("capacity", self.capacity, bytes_each=6 * float_bytes(), unit="boxes")
-        self.prim_lo = ti.Vector.field(3, float, self.capacity)
-        self.prim_hi = ti.Vector.field(3, float, self.capacity)
-        self.count = ti.field(ti.i32, ())
+        self.prim_lo = make(self, "brute_prim_lo", float, self.capacity, (3,))
+        self.prim_hi = make(self, "brute_prim_hi", float, self.capacity, (3,))
+        self.count = make(self, "brute_count", ti.i32, ())
         self.n = 0
         self.build_count = 0
 
@@ -102,10 +103,11 @@ def choose_box_query(count: int, queries: int | None = None) -> BoxQueryMethod:
     return BoxQueryMethod.BRUTE if brute < bvh else BoxQueryMethod.BVH
 
 
-def make_box_query(capacity: int, *, method: str = "auto", queries: int | None = None):
+def make_box_query(capacity: int, *, method: str = "auto", queries: int | None = None, make=plain):
     """A structure for box / ball queries over up to `capacity` boxes (the protocol in the module
     docstring). method: "brute", "grid", "octree", "bvh", or "auto" (`choose_box_query(capacity,
-    queries)`)."""
+    queries)`). make(owner, role, dtype, shape, dims): the allocator of its fields (a model's pool under
+    capacity buckets); the grid and the octree always make their own."""
     validate.choice("method", method, [m.value for m in BoxQueryMethod] + ["auto"])
     kind = choose_box_query(capacity, queries) if method == "auto" else BoxQueryMethod(method)
     cls = {
@@ -114,4 +116,6 @@ def make_box_query(capacity: int, *, method: str = "auto", queries: int | None =
         BoxQueryMethod.OCTREE: Octree,
         BoxQueryMethod.BVH: BVH,
     }[kind]
+    if kind in (BoxQueryMethod.BRUTE, BoxQueryMethod.BVH):
+        return cls(capacity, make=make)
     return cls(capacity)
