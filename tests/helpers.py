@@ -1,5 +1,7 @@
 """Small scene builders shared by the tests (public API only)."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import taichi as ti
 
@@ -90,3 +92,21 @@ def assert_passes_match_element_arrays(term, x, v, p, h: float, rel: float = 1e-
     for got, want in ((f, want_f), (kxv, want_kxv), (sp, want_sp), (diag, want_diag)):
         scale = max(np.abs(want).max(), np.finfo(float).tiny)
         assert np.abs(got.to_numpy() - want).max() <= rel * scale
+
+
+def mesh_drop(*, rings: int, segments: int, frames_dt: float = 1.0 / 600.0):
+    """A 10 x 10 grid of particles falling from 5 cm above a UV-sphere mesh collider (rings x segments) under
+    gravity, symplectic Euler: the scene-like record the size-bucket tests step (model, integrator, state,
+    dt, substeps)."""
+    from taichi_anim.scenes.drape import uv_sphere
+
+    b = ta.Builder()
+    b.add_force_gravity()
+    for i in range(10):
+        for j in range(10):
+            b.add_particle((0.02 * (i - 4.5), 0.45, 0.02 * (j - 4.5)), (0.0, 0.0, 0.0), mass=0.01)
+    ball = uv_sphere((0.0, 0.2, 0.0), 0.2, rings=rings, segments=segments)
+    b.add_collider_mesh(ball, restitution=0.0, friction=0.2)
+    model = b.finalize()
+    integrator = ta.make_integrator("symplectic_euler")
+    return SimpleNamespace(model=model, integrator=integrator, state=model.state(), dt=frames_dt, substeps=1)

@@ -19,7 +19,7 @@ from taichi_anim import capacity
 from taichi_anim.errors import ParameterError
 from taichi_anim.scenes import cloth, fountain, layers, spheres
 
-from .helpers import ulp_tolerance
+from .helpers import mesh_drop, ulp_tolerance
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -36,22 +36,31 @@ SIZES = {
     # Two sheets with self-contact (its pair lists, guard and BVHs over triangles and edges) on a ball: 392
     # and 450 vertices, 676 and 784 triangles, 1066 and 1232 edges, 2076 and 2404 springs; 17: 578 vertices.
     "layers": ({"resolution": 14}, {"resolution": 15}, {"resolution": 17}),
+    # Particles on a static mesh collider (its BVH, adjacency and normals): 114 and 107 vertices, 224 and
+    # 210 faces (buckets 128 and 256); 12 rings: 178 vertices, 352 faces.
+    "mesh": ({"rings": 8, "segments": 16}, {"rings": 8, "segments": 15}, {"rings": 12, "segments": 16}),
 }
 BUILD = {
     "fountain": {},
     "cloth": {"integrator": "implicit_euler"},
     "spheres": {"steps_per_frame": 2},
     "layers": {"layers": 2},
+    "mesh": {},
 }
-SCENES = {"fountain": fountain, "cloth": cloth, "spheres": spheres, "layers": layers}
+# What builds each kind: a demo's build(), or a test scene ("module:function", importable in the runner).
+BUILDERS = {name: f"taichi_anim.scenes.{name}:build" for name in ("fountain", "cloth", "spheres", "layers")}
+BUILDERS["mesh"] = "tests.helpers:mesh_drop"
+SCENES = {"fountain": fountain.build, "cloth": cloth.build, "spheres": spheres.build, "layers": layers.build}
+SCENES["mesh"] = mesh_drop
 
 _RUNNER = """
 import gc, json, sys
 import taichi_anim as ta
 from importlib import import_module
 ta.init("cpu", size_buckets=True)
-for name, options in json.loads(sys.argv[1]):
-    scene = import_module("taichi_anim.scenes." + name).build(**options)
+for builder, options in json.loads(sys.argv[1]):
+    module, function = builder.split(":")
+    scene = getattr(import_module(module), function)(**options)
     stepper = ta.Stepper(scene.model, scene.integrator)
     for _ in range(2):
         stepper.step(scene.state, scene.dt, scene.substeps)
@@ -62,7 +71,7 @@ for name, options in json.loads(sys.argv[1]):
 
 
 def _run(plan: list, cache: Path) -> int:
-    """Run the scenes of `plan` ([name, build options] in order) in one new process with the offline
+    """Run the scenes of `plan` ([builder, build options] in order) in one new process with the offline
     cache in `cache`; return how many compiled kernels the cache holds afterwards."""
     env = dict(os.environ, TI_OFFLINE_CACHE_FILE_PATH=str(cache), PYTHONPATH=str(ROOT))
     env.pop("TAICHI_ANIM_SIZE_BUCKETS", None)
@@ -72,7 +81,7 @@ def _run(plan: list, cache: Path) -> int:
 
 
 def _plan(which: int) -> list:
-    return [[name, {**BUILD[name], **SIZES[name][which]}] for name in SIZES]
+    return [[BUILDERS[name], {**BUILD[name], **SIZES[name][which]}] for name in SIZES]
 
 
 def test_another_size_in_the_bucket_compiles_no_kernel(tmp_path):
@@ -89,7 +98,7 @@ def test_another_size_in_the_bucket_compiles_no_kernel(tmp_path):
 
 def _final(name: str, buckets: bool, frames: int):
     ta.init("cpu", precision="f64", size_buckets=buckets)
-    scene = SCENES[name].build(**BUILD[name], **SIZES[name][1])
+    scene = SCENES[name](**BUILD[name], **SIZES[name][1])
     stepper = ta.Stepper(scene.model, scene.integrator)
     for _ in range(frames):
         stepper.step(scene.state, scene.dt, scene.substeps)
@@ -102,7 +111,9 @@ def buckets_reset():
     capacity.set_enabled(None)
 
 
-@pytest.mark.parametrize("name, frames", [("fountain", 30), ("cloth", 10), ("spheres", 10), ("layers", 130)])
+@pytest.mark.parametrize(
+    "name, frames", [("fountain", 30), ("cloth", 10), ("spheres", 10), ("layers", 130), ("mesh", 200)]
+)
 def test_buckets_run_the_same_physics(buckets_reset, name, frames):
     """The live count read at run time instead of a constant: the same arithmetic, compiled apart, so equal
     within round-off (the cloth's PCG also stops after the same iterations)."""
@@ -122,6 +133,9 @@ def test_buckets_run_the_same_physics(buckets_reset, name, frames):
     np.testing.assert_allclose(x1[alive0], x0[alive0], rtol=0, atol=tol)
     # Rows past the live count are never touched: still the zeros the start wrote.
     assert not np.any(bucketed.state.particle_x.to_numpy()[n:])
+    if name == "mesh":  # the particles reached the ball: the nearest rests on its faces (inside the sphere)
+        gap = np.linalg.norm(x1 - (0.0, 0.2, 0.0), axis=1) - 0.2
+        assert -0.01 < gap.min() < 1e-4
     contact = stepper.solver("self-contact")
     if contact is not None:  # the sheets lie on the ball and on each other: pairs found and guarded
         assert contact.buckets and contact.tri_boxes.capacity > contact.triangle_count

@@ -154,9 +154,10 @@ class ColliderAnalytic(Collider):
     def moving(self) -> bool:
         return self.motion is not None
 
-    def allocate(self, reach: float = 0.0) -> None:
+    def allocate(self, reach: float = 0.0, model=None) -> None:
         """Write what the kernels read into fields (called once by the Model, after Taichi starts; reach
-        [m]: the largest particle radius the collider will be queried with). Checks the protocol first."""
+        [m]: the largest particle radius the collider will be queried with; model: the Model, whose
+        allocator a collider with per-size arrays uses). Checks the protocol first."""
         check_collider(self)
         if self.motion is not None:
             self.motion.allocate()

@@ -36,7 +36,7 @@ import numpy as np
 import taichi as ti
 from taichi.lang import impl
 
-from .. import validate
+from .. import capacity, validate
 from ..errors import ParameterError
 from ..geometry import load_mesh
 from ..runtime import data_oriented, np_float
@@ -189,9 +189,12 @@ class ColliderMesh(Collider):
 
     # -- fields and per-step work ------------------------------------------------------------------------
 
-    def allocate(self, reach: float = 0.0) -> None:
+    def allocate(self, reach: float = 0.0, model=None) -> None:
         """Fields, the BVH and the adjacency (once per Taichi program). reach [m]: the largest particle
-        radius the mesh is queried with (distances beyond thickness + reach are not needed)."""
+        radius the mesh is queried with (distances beyond thickness + reach are not needed). model: the
+        Model it serves, whose allocator it uses: under capacity buckets (capacity.py) the arrays have
+        bucket rows from the model's pool and the loops run to live counts read at run time, so a mesh of
+        another size in the same buckets compiles nothing new."""
         check_collider(self)
         program = impl.get_runtime().prog
         if self._program is program:
@@ -199,20 +202,29 @@ class ColliderMesh(Collider):
         self._program = program
         self.reach = float(reach) + self.thickness + 1e-6  # distances farther than this are "far"
         f = np_float()
-        self.mesh = TriangleMesh(self.vertices, self.faces)
+        self.buckets = bool(model is not None and model.size_buckets)
+        make = model.new_field if model is not None else capacity.plain
+        rows = capacity.bucket if self.buckets else int
+        cv, cf = rows(self.vertex_count), rows(self.face_count)
+        self.live = None
+        if self.buckets:
+            self.live = make(self, "mesh_collider_live", ti.i32, (), (2,))
+            self.live[None] = (self.vertex_count, self.face_count)
+        self.mesh = TriangleMesh(self.vertices, self.faces, vertex_capacity=cv, face_capacity=cf, make=make)
         vec3 = ti.types.vector(3, float)
         self._hit_type = ti.types.struct(dist2=float, face=ti.i32, w=vec3)
-        self.face_adj = ti.Vector.field(3, ti.i32, self.face_count)
-        self.face_adj.from_numpy(self.adjacency)
+        self.face_adj = make(self, "mesh_collider_face_adj", ti.i32, cf, (3,))
+        self.face_adj.from_numpy(capacity.padded(self.adjacency, cf, np.int32))
         # Faces around each vertex (compressed rows), for the angle-weighted vertex normal.
         order = np.argsort(self.faces.reshape(-1), kind="stable")
         counts = np.bincount(self.faces.reshape(-1), minlength=self.vertex_count)
-        self.vertex_face_start = ti.field(ti.i32, self.vertex_count + 1)
-        self.vertex_face_start.from_numpy(np.concatenate([[0], np.cumsum(counts)]).astype(np.int32))
-        self.vertex_faces = ti.field(ti.i32, 3 * self.face_count)
-        self.vertex_faces.from_numpy((order // 3).astype(np.int32))
-        self.vertex_n = ti.Vector.field(3, float, self.vertex_count)
-        self.vertex_n0 = ti.Vector.field(3, float, self.vertex_count) if self.deforming else None
+        self.vertex_face_start = make(self, "mesh_collider_vertex_face_start", ti.i32, cv + 1)
+        starts = np.concatenate([[0], np.cumsum(counts)])
+        self.vertex_face_start.from_numpy(capacity.padded(starts, cv + 1, np.int32))
+        self.vertex_faces = make(self, "mesh_collider_vertex_faces", ti.i32, 3 * cf)
+        self.vertex_faces.from_numpy(capacity.padded(order // 3, 3 * cf, np.int32))
+        self.vertex_n = make(self, "mesh_collider_vertex_n", float, cv, (3,))
+        self.vertex_n0 = make(self, "mesh_collider_vertex_n0", float, cv, (3,)) if self.deforming else None
         if self.motion is not None:
             self.motion.allocate()
         if not self.deforming:
@@ -220,14 +232,32 @@ class ColliderMesh(Collider):
         else:
             times, pos = self.frames
             self.key_count = len(times)
-            self.key_t = ti.field(float, self.key_count)
-            self.key_x = ti.Vector.field(3, float, (self.key_count, self.vertex_count))
+            self.key_t = make(self, "mesh_collider_key_t", float, self.key_count)
+            self.key_x = make(self, "mesh_collider_key_x", float, (self.key_count, cv), (3,))
             self.key_t.from_numpy(times.astype(f))
-            self.key_x.from_numpy(pos.astype(f))
-            self.vertex_x0 = ti.Vector.field(3, float, self.vertex_count)  # start of the step
-            self.vertex_v = ti.Vector.field(3, float, self.vertex_count)  # over the step [m/s]
-            self.step = ti.field(float, 3)  # start time, length of the prepared step, largest displacement
+            keys = np.zeros((self.key_count, cv, 3), dtype=f)
+            keys[:, : self.vertex_count] = pos
+            self.key_x.from_numpy(keys)
+            self.vertex_x0 = make(self, "mesh_collider_vertex_x0", float, cv, (3,))  # start of the step
+            self.vertex_v = make(self, "mesh_collider_vertex_v", float, cv, (3,))  # over the step [m/s]
+            # start time, length of the prepared step, largest displacement
+            self.step = make(self, "mesh_collider_step", float, 3)
             self.prepare(0.0, 0.0)
+
+    @ti.func
+    def live_vertices(self):
+        """The mesh's vertex count (under buckets a field read; else a constant)."""
+        if ti.static(self.buckets):
+            return self.live[None][0]
+        else:
+            return self.vertex_count
+
+    @ti.func
+    def live_faces(self):
+        if ti.static(self.buckets):
+            return self.live[None][1]
+        else:
+            return self.face_count
 
     def prepare(self, t: float, h: float) -> None:
         """Vertices at t and t + h [s], their normals, swept face boxes and the BVH refit (rebuilt if
@@ -242,14 +272,14 @@ class ColliderMesh(Collider):
             self.step[0] = t
             self.step[1] = h
             self.step[2] = 0.0
-        for v in range(self.vertex_count):
+        for v in range(self.live_vertices()):
             x0 = self._frame_position(v, t)
             x1 = self._frame_position(v, t + h)
             self.vertex_x0[v] = x0
             self.mesh.vertex_x[v] = x1
             self.vertex_v[v] = (x1 - x0) / ti.max(h, 1e-30)
             ti.atomic_max(self.step[2], (x1 - x0).norm())
-        for f in range(self.face_count):
+        for f in range(self.live_faces()):
             tri = self.mesh.face_vertices[f]
             a0, b0, c0 = self.vertex_x0[tri[0]], self.vertex_x0[tri[1]], self.vertex_x0[tri[2]]
             a1, b1, c1 = self.mesh.corners(f)
@@ -353,7 +383,7 @@ class ColliderMesh(Collider):
     def _vertex_normals(self):
         """Vertex normals at the end of the step (and its start, for a deforming mesh): a gather per
         vertex over its faces in a fixed order (no atomics)."""
-        for v in range(self.vertex_count):
+        for v in range(self.live_vertices()):
             self.vertex_n[v] = self._vertex_normal(v, 1.0)
             if ti.static(self.deforming):
                 self.vertex_n0[v] = self._vertex_normal(v, 0.0)

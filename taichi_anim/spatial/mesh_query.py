@@ -26,6 +26,7 @@ import numpy as np
 import taichi as ti
 
 from .. import validate
+from ..capacity import plain
 from ..errors import ParameterError
 from ..runtime import data_oriented, float_dtype, np_float
 from .bounds import aabb_point_distance_sq, aabb_ray, aabb_triangle, fp_epsilon
@@ -165,18 +166,26 @@ class TriangleMesh:
     """
 
     def __init__(
-        self, vertices, faces, *, vertex_capacity: int | None = None, face_capacity: int | None = None
+        self,
+        vertices,
+        faces,
+        *,
+        vertex_capacity: int | None = None,
+        face_capacity: int | None = None,
+        make=plain,
     ):
+        """make(owner, role, dtype, shape, dims): the allocator of its fields (a model's pool under capacity
+        buckets, capacity.py; default: new fields)."""
         v, f = check_mesh(vertices, faces)
         self.vertex_capacity = validate.count("vertex_capacity", vertex_capacity or len(v), 1)
         self.face_capacity = validate.count("face_capacity", face_capacity or len(f), 1)
         fb = float_bytes()
         validate.capacity("vertex_capacity", self.vertex_capacity, bytes_each=3 * fb, unit="vertices")
         validate.capacity("face_capacity", self.face_capacity, bytes_each=12 + 19 * fb + 46, unit="faces")
-        self.vertex_x = ti.Vector.field(3, float, self.vertex_capacity)
-        self.face_vertices = ti.Vector.field(3, ti.i32, self.face_capacity)
-        self.bvh = BVH(self.face_capacity)
-        self.face_count_field = ti.field(ti.i32, ())
+        self.vertex_x = make(self, "mesh_vertex_x", float, self.vertex_capacity, (3,))
+        self.face_vertices = make(self, "mesh_face_vertices", ti.i32, self.face_capacity, (3,))
+        self.bvh = BVH(self.face_capacity, make=make)
+        self.face_count_field = make(self, "mesh_face_count", ti.i32, ())
         self._types = _query_types()
         self.vertex_count = 0
         self.face_count = 0
