@@ -32,6 +32,7 @@ import numpy as np
 import taichi as ti
 
 from .. import validate
+from ..capacity import plain
 from ..collision.neighbors import make_neighbor_search
 from ..errors import ParameterError
 from ..runtime import data_oriented, np_float
@@ -63,7 +64,9 @@ class BlobField:
         resolution: int = 128,
         cutoff: float = DEFAULT_CUTOFF,
         neighbor_method: str = "grid",
+        make=plain,
     ):
+        self._make = make  # the allocator: new fields, or a model's pool under capacity buckets
         self.capacity = validate.count("capacity", capacity, 1)
         self.sigma = validate.positive("sigma", sigma)
         self.cutoff = validate.positive("cutoff", cutoff)
@@ -91,18 +94,24 @@ class BlobField:
         validate.capacity(f"resolution {resolution}", nodes, bytes_each=fb + 4, unit="grid nodes")
         validate.capacity("capacity", self.capacity, bytes_each=6 * fb, unit="particles")
 
-        self.psi = ti.field(float, self.dims)
-        self.block_flag = ti.field(ti.i32, self.block_count)
-        self.block_slot = ti.field(ti.i32, self.block_count)  # block -> position in active_block, or -1
-        self.active_block = ti.field(ti.i32, self.block_count)  # flagged blocks in block order
-        self.active_count = ti.field(ti.i32, ())
-        self.active_box = ti.Vector.field(3, ti.i32, 2)  # lowest and highest flagged block coordinates
+        self.psi = make(self, "blob_psi", float, self.dims)
+        self.block_flag = make(self, "blob_block_flag", ti.i32, self.block_count)
+        # block -> position in active_block, or -1
+        self.block_slot = make(self, "blob_block_slot", ti.i32, self.block_count)
+        self.active_block = make(self, "blob_active_block", ti.i32, self.block_count)  # flagged, in order
+        self.active_count = make(self, "blob_active_count", ti.i32, ())
+        # lowest and highest flagged block coordinates
+        self.active_box = make(self, "blob_active_box", ti.i32, 2, (3,))
         self.block_slot.fill(-1)
         # A block's query around its centre reaches every particle within r_c of any of its nodes.
         self.block_radius = self.cutoff_radius + 0.5 * (BLOCK - 1) * self.spacing * float(np.sqrt(3.0))
         r = self.block_radius
         self.neighbors = make_neighbor_search(
-            self.capacity, r, domain=(tuple(lo - r), tuple(np.asarray(self.hi) + r)), method=neighbor_method
+            self.capacity,
+            r,
+            domain=(tuple(lo - r), tuple(np.asarray(self.hi) + r)),
+            method=neighbor_method,
+            make=make,
         )
         self._x = None  # staging field for NumPy input, allocated on first use
         self._inv_s2 = 1.0 / self.sigma**2
@@ -142,7 +151,7 @@ class BlobField:
             if len(pts) > self.capacity:
                 raise ParameterError(f"x must hold at most capacity={self.capacity} points, got {len(pts)}")
             if self._x is None:
-                self._x = ti.Vector.field(3, float, self.capacity)
+                self._x = self._make(self, "blob_staging_x", float, self.capacity, (3,))
             buf = np.zeros((self.capacity, 3), dtype=np_float())
             buf[: len(pts)] = pts
             self._x.from_numpy(buf)

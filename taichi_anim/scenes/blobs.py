@@ -87,7 +87,8 @@ def build(
     # not cut by the grid's zero outer layer.
     margin = sigma * math.sqrt(math.log(1.0 / iso)) + 2.0 * max(np.subtract(hi, lo)) / resolution
     field = BlobField(
-        capacity=model.particle_count,
+        capacity=model.particle_capacity,  # the count, or its bucket: another pool size compiles nothing new
+        make=model.new_field,
         sigma=sigma,
         bounds=(np.subtract(lo, margin), np.add(hi, margin)),
         resolution=resolution,
