@@ -8,11 +8,13 @@ two costs that do not shape the IR:
 - the source position of every AST node visited, formatted eagerly (a `TextWrapper` per line) so that an
   error message can name it: more than half of the front end's time, though only one visit in four ever
   reads it (the IR's debug info) and an error reads one;
-- the function's source read again through `inspect` (a tokenizer pass) at every inlined `ti.func`
-  call: 0.7 s of the flag's 8 s profile.
+- the function's source read again through `inspect` (its file looked up, a tokenizer pass) and each of
+  its lines re-wrapped by `textwrap.fill` at every inlined `ti.func` call: 0.7 s of the flag's 8 s
+  profile.
 
 `install()` makes the first lazy (each visit pushes its node; the text is formatted when read, memoised
-by the source it points at) and memoises the second per code object. The strings are Taichi's own,
+by the source it points at) and memoises the second per code object (the file and lines) and per line
+(the wrap). The strings are Taichi's own,
 character for character, so the IR, its debug info and the offline cache keys are unchanged (tested:
 tests/test_frontend.py). Like the fast `data_oriented` in runtime.py it touches Taichi's private names,
 so it is on only for the Taichi versions it was checked against, and TAICHI_ANIM_PLAIN_FRONTEND=1 turns
@@ -22,8 +24,11 @@ it off.
 from __future__ import annotations
 
 import ast
+import functools
 import os
+import textwrap
 import traceback
+from types import SimpleNamespace
 
 import taichi as ti
 from taichi.lang import impl
@@ -36,6 +41,7 @@ _installed = False
 _originals: dict = {}
 _positions: dict = {}  # memo of formatted positions, keyed by the text and place they describe
 _sources: dict = {}  # code object -> (source lines, first line)
+_files: dict = {}  # code object -> source file
 
 
 class _Position:
@@ -119,6 +125,20 @@ def _getsourcelines(obj):
     return list(lines), first
 
 
+def _getsourcefile(obj):
+    code = getattr(obj, "__code__", None)
+    if code is None:
+        return _originals["getsourcefile"](obj)
+    found = _files.get(code)
+    if found is None:
+        found = _files[code] = _originals["getsourcefile"](obj)
+    return found
+
+
+# What kernel_impl reads from `textwrap`: fill (once per source line; memoised) and dedent.
+_textwrap = SimpleNamespace(fill=functools.lru_cache(maxsize=1 << 16)(textwrap.fill), dedent=textwrap.dedent)
+
+
 def available() -> bool:
     """Whether this Taichi is one the patch was checked against, and it is not turned off."""
     if os.environ.get("TAICHI_ANIM_PLAIN_FRONTEND", "") not in ("", "0"):
@@ -139,11 +159,15 @@ def install() -> bool:
         builder_call=utils.Builder.__call__,
         current_src_info=impl.PyTaichi.get_current_src_info,
         getsourcelines=kernel_impl.getsourcelines,
+        getsourcefile=kernel_impl.getsourcefile,
+        textwrap=kernel_impl.textwrap,
     )
     utils.ASTTransformerContext.get_pos_info = _position_text
     utils.Builder.__call__ = _builder_call
     impl.PyTaichi.get_current_src_info = _current_src_info
     kernel_impl.getsourcelines = _getsourcelines
+    kernel_impl.getsourcefile = _getsourcefile
+    kernel_impl.textwrap = _textwrap
     _installed = True
     return True
 
@@ -160,4 +184,6 @@ def uninstall() -> None:
     utils.Builder.__call__ = _originals["builder_call"]
     impl.PyTaichi.get_current_src_info = _originals["current_src_info"]
     kernel_impl.getsourcelines = _originals["getsourcelines"]
+    kernel_impl.getsourcefile = _originals["getsourcefile"]
+    kernel_impl.textwrap = _originals["textwrap"]
     _installed = False

@@ -54,7 +54,7 @@ import taichi as ti
 
 from .. import capacity, validate
 from ..errors import DivergenceError, ParameterError
-from ..runtime import compile_with, data_oriented
+from ..runtime import compile_with, data_oriented, serial_loops
 from ..spatial.bounds import aabb_point_distance_sq
 from ..spatial.crossings import intersecting_triangle_pairs, triangles_meet
 from ..spatial.distance import point_triangle_closest, segment_segment_closest
@@ -139,6 +139,7 @@ class SelfContact(ProximitySweeps, DisplacementGuard):
         self.buckets = model.size_buckets
         rows = capacity.bucket if self.buckets else int
         cv, cf, ce = rows(nv), rows(nf), rows(ne)
+        self.serial_guard = serial_loops(cv)  # the guard's pass as one serial task (self_contact_guard.py)
         make = self._make = model.new_field
         self.live = None
         if self.buckets:

@@ -184,10 +184,36 @@ class DisplacementGuard:
                     state.particle_x[i] = self.x0[v] + step * (b / length)
                     ti.atomic_add(self.count[2], 1)
 
-    # See _query.
+    # See SelfContact._query. Small cloths (serial_guard) run the whole pass as one serial task: its loops
+    # are a few operations per vertex, less than the ~0.1 ms a parallel loop's thread-pool round trip costs
+    # here (it has about twenty), and the hold passes then run as a loop instead of unrolled copies.
     @compile_with(cfg_optimization=False)
     @ti.kernel
     def _finish(self, model: ti.template(), state: ti.template(), h: float, final: ti.template()):
+        if ti.static(self.serial_guard):
+            ti.loop_config(serialize=True)
+            for _ in range(1):
+                self._finish_all(model, state, h, final)
+        else:
+            self._finish_all(model, state, h, final)
+
+    @ti.func
+    def _hold_passes(self, model: ti.template(), state: ti.template(), final: ti.template()):
+        if ti.static(self.serial_guard):
+            for _pass in range(HOLD_PASSES):
+                self._hold_pass(model, state, final)
+        else:
+            for _pass in ti.static(range(HOLD_PASSES)):
+                self._hold_pass(model, state, final)
+
+    @ti.func
+    def _hold_pass(self, model: ti.template(), state: ti.template(), final: ti.template()):
+        self._violations(model, state, True, final)
+        self._join_groups()
+        self._place(model, state)
+
+    @ti.func
+    def _finish_all(self, model: ti.template(), state: ti.template(), h, final: ti.template()):
         for v in range(self.verts()):
             self.hold[v] = 0
             self.anchor[v] = 0
@@ -202,10 +228,7 @@ class DisplacementGuard:
         # (a group's motion can make a pair to its outside fast), and after HOLD_PASSES hold every
         # vertex within its bound: all held, every pair is safe (gamma < 1/2).
         if ti.static(self.guard):
-            for _pass in ti.static(range(HOLD_PASSES)):
-                self._violations(model, state, True, final)
-                self._join_groups()
-                self._place(model, state)
+            self._hold_passes(model, state, final)
             self._violations(model, state, False, final)
             if self.count[7] > 0:
                 self.count[6] += 1
