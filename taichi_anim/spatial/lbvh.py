@@ -159,6 +159,7 @@ class BVH:
         self._cuda = impl.current_cfg().arch == ti.cuda
         # Refit: a serial sweep in reverse pre-order on the CPU, the parallel climb on GPUs.
         self._climb = backend_name() != "cpu"
+        self._one_task = self._serial and not self._climb  # the build as one serial task (`_build`)
         self.refit_order = make(self, "bvh_refit_order", ti.i32, inner)
 
     # ---------------------------------------------------------------------------------------------
@@ -198,16 +199,35 @@ class BVH:
     # ---------------------------------------------------------------------------------------------
     # build
 
-    # A large serial build: Taichi's CFG passes cost compile time only (see SelfContact._query).
+    # A large serial build: Taichi's CFG passes cost compile time only (see SelfContact._query). A small
+    # tree on the CPU (every loop serial anyway) is built in one serial task, its radix passes a loop over
+    # one copy of the pass instead of RADIX_PASSES unrolled ones (the same sort: each pass's output is
+    # copied back), which halved the front end's and the compiler's work on it.
     @compile_with(cfg_optimization=False)
     @ti.kernel
     def _build(self, n: ti.i32):
+        if ti.static(self._one_task):
+            ti.loop_config(serialize=True)
+            for _ in range(1):
+                self._build_all(n)
+        else:
+            self._build_all(n)
+
+    @ti.func
+    def _build_all(self, n):
         self._morton(n)
-        for s in ti.static(range(RADIX_PASSES)):
-            if ti.static(s % 2 == 0):
+        if ti.static(self._one_task):
+            for s in range(RADIX_PASSES):
                 self._radix_pass(self.code, self.prim_id, self._code_tmp, self._id_tmp, s * RADIX_BITS, n)
-            else:
-                self._radix_pass(self._code_tmp, self._id_tmp, self.code, self.prim_id, s * RADIX_BITS, n)
+                for k in range(n):
+                    self.code[k] = self._code_tmp[k]
+                    self.prim_id[k] = self._id_tmp[k]
+        else:
+            for s in ti.static(range(RADIX_PASSES)):
+                if ti.static(s % 2 == 0):
+                    self._radix_pass(self.code, self.prim_id, self._code_tmp, self._id_tmp, s * RADIX_BITS, n)
+                else:
+                    self._radix_pass(self._code_tmp, self._id_tmp, self.code, self.prim_id, s * RADIX_BITS, n)
         self._hierarchy(n)
         if ti.static(not self._climb):
             self._post_order(n)
