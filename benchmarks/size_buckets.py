@@ -33,7 +33,15 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from harness import Page, log, parse_args  # noqa: E402
 
 # The build() keyword a size sets.
-SIZE_OPTION = {"fountain": "particles", "cloth": "resolution", "flag": "resolution", "spheres": "particles"}
+SIZE_OPTION = {
+    "fountain": "particles",
+    "cloth": "resolution",
+    "flag": "resolution",
+    "spheres": "particles",
+    "layers": "resolution",
+    "tablecloth": "resolution",
+    "blobs": "particles",
+}
 # Cloth sizes that are not powers of two, so the padded rows are there (48^2 -> 4096 rows, 96^2 -> 16384);
 # the flag: a membrane, bending and aerodynamics, stepped by implicit Euler with PCG (the linear solver's
 # live row and block counts).
@@ -42,21 +50,49 @@ RUN_SIZES = {
     "cloth": (48, 96, 128),
     "flag": (40, 64),
     "spheres": (10_000, 100_000),
+    # Cloth self-contact (two sheets; its BVHs, pair lists and guard), self-contact with a mesh collider
+    # (the table), and the blob field of a jet.
+    "layers": (24, 33),
+    "tablecloth": (30, 48),
+    "blobs": (1500, 6000),
 }
-QUICK_RUN_SIZES = {"fountain": (2000,), "cloth": (16, 24), "flag": (20,), "spheres": (2000,)}
+QUICK_RUN_SIZES = {
+    "fountain": (2000,),
+    "cloth": (16, 24),
+    "flag": (20,),
+    "spheres": (2000,),
+    "layers": (12,),
+    "tablecloth": (16,),
+    "blobs": (500,),
+}
 # Two sizes in one bucket: 3000 and 3900 particles -> 4096; 30^2 = 900 and 31^2 = 961 vertices -> 1024;
 # the flag at 36 and 39 (864 and 1014 vertices -> 1024; triangles -> 2048, hinges -> 4096).
 # Spheres 3000 and 3500: the demo's column is 25 layers high either way, so its box is the same (a
 # collider's shape is a compile-time constant, and the demo's box grows with the column).
-PAIRS = {"fountain": (3000, 3900), "cloth": (30, 31), "flag": (36, 39), "spheres": (3000, 3500)}
+# Two sheets at 14 and 15 (392 and 450 vertices, 676 and 784 triangles, 1066 and 1232 edges); the
+# tablecloth at 30 and 31; the blobs' pool of 1500 and 1900 particles (the blob field sized by it).
+PAIRS = {
+    "fountain": (3000, 3900),
+    "cloth": (30, 31),
+    "flag": (36, 39),
+    "spheres": (3000, 3500),
+    "layers": (14, 15),
+    "tablecloth": (30, 31),
+    "blobs": (1500, 1900),
+}
 # The spheres demo steps 240 times a frame; 24 keep a 10^5-sphere run of 30 frames to seconds.
-BUILD_OPTIONS = {"spheres": {"steps_per_frame": 24}}
+BUILD_OPTIONS = {"spheres": {"steps_per_frame": 24}, "layers": {"layers": 2}}
+# Scenes whose frames include their surface (the blob field and its isosurface): timed and compiled too.
+SURFACED = {"blobs"}
 COMPILE_FRAMES = 5
 INTEGRATORS = {
     "fountain": "symplectic_euler",
     "cloth": "symplectic_euler",
     "flag": "implicit_euler",
     "spheres": "symplectic_euler",
+    "layers": "implicit_euler",
+    "tablecloth": "implicit_euler",
+    "blobs": "symplectic_euler",
 }
 MODES = {"off": False, "on": True}
 RESULT_MARK = "SIZE_BUCKETS_RESULT "  # the worker's answer line (Taichi prints its banner to stdout too)
@@ -108,6 +144,8 @@ def time_frames(spec: dict) -> dict:
     t0 = time.perf_counter()
     for _ in range(spec["frames"]):
         stepper.step(scene.state, scene.dt, scene.substeps)
+        if spec["scene"] in SURFACED:
+            scene.frame_content()
     ti.sync()
     seconds = time.perf_counter() - t0
     m = scene.model
@@ -139,6 +177,8 @@ def compile_sizes(spec: dict) -> list[dict]:
         with CompileClock() as clock:  # the frames only: kernels launched while building are not in it
             for _ in range(COMPILE_FRAMES):
                 stepper.step(scene.state, scene.dt, scene.substeps)
+                if spec["scene"] in SURFACED:
+                    scene.frame_content()
             ti.sync()
         out.append(
             {
@@ -297,13 +337,16 @@ def memory_table(page: Page, timing: list) -> None:
 
 def write_page(args, timing: list, procs: list, single: list) -> None:
     page = Page(
-        "size_buckets" if args.scenes is None else "size_buckets_subset",
+        "size_buckets" if args.scenes is None else "size_buckets_" + "_".join(args.scenes),
         "Capacity buckets: run time, compiles across sizes, memory",
         args,
         {
-            "scenes": "fountain and spheres (particles), cloth and flag (resolution); integrators "
+            "scenes": "the size option of each: "
+            + ", ".join(f"{k} {v}" for k, v in SIZE_OPTION.items())
+            + "; integrators "
             + ", ".join(f"{k} {v}" for k, v in INTEGRATORS.items())
-            + "; spheres with steps_per_frame=24; CPU, f32",
+            + "; spheres with steps_per_frame=24, layers with 2 sheets; blobs frames include the blob field "
+            "and its isosurface; CPU, f32",
             "run time": f"ms per frame of {args.frames} frames after 1 warm-up frame, ti.sync() before each "
             f"clock read; median of {args.reps} repetition(s), each a fresh process per mode, modes "
             "alternating (off-on, on-off, ...), offline cache warmed by one run per mode and size",
@@ -329,7 +372,7 @@ def main(argv=None) -> int:
         p.add_argument("--reps", type=int, default=None, help="repetitions per mode (default 5; quick 1)")
         p.add_argument("--frames", type=int, default=None, help="timed frames (default 30; quick 3)")
         p.add_argument("--scenes", nargs="+", choices=sorted(RUN_SIZES), default=None,
-                       help="only these scenes (the page is then size_buckets_subset)")  # fmt: skip
+                       help="only these scenes (the page is then size_buckets_SCENES...)")  # fmt: skip
         # internal: the parent hands a measurement's spec (JSON) to a worker process
         p.add_argument("--worker", default=None, help=argparse.SUPPRESS)
 

@@ -40,7 +40,31 @@ class LinearSolverJacobi(LinearSolver):
                     s[0] += b.dot(b)
                 self.store(START, blk, s)
 
-    # Unrolled iterations, as in LinearSolverCG._iterate: the CFG passes cost compile time only.
+    # Each iteration's two loops, per block of rows, for the two forms of `_iterate` below (k: the
+    # iteration's index within the launch; base is even, so its parity picks the slots).
+    @ti.func
+    def _residual(self, system: ti.template(), blk, k):
+        x = ti.static(system.solution)
+        s = ti.Vector.zero(float, 3)
+        for i in range(blk * self.block, self.row_end(blk)):
+            r = system.rhs[i] - system.apply(i, x)
+            self.r[i] = r
+            s[0] += r.dot(r)
+        self.store(R0 + k % 2, blk, s)
+        self.clear(R1 - k % 2, blk)
+
+    @ti.func
+    def _update(self, system: ti.template(), blk, k, base, tol, floor, cap):
+        x = ti.static(system.solution)
+        bb = self.total(START)[0]
+        rr = self.total(R0 + k % 2)[0]
+        stop = self.converged(rr, bb, tol, floor) or base + k >= cap
+        if not self.finish(blk, base + k, rr, bb, stop):
+            for i in range(blk * self.block, self.row_end(blk)):
+                x[i] += system.precondition(i, self.r[i])
+
+    # Unrolled iterations, as in LinearSolverCG._iterate: the CFG passes cost compile time only. Serial
+    # systems take `_iterate_serial`.
     @compile_with(cfg_optimization=False)
     @ti.kernel
     def _iterate(
@@ -52,29 +76,26 @@ class LinearSolverJacobi(LinearSolver):
         floor: float,
         cap: ti.i32,
     ):
-        x = ti.static(system.solution)
         for k in ti.static(range(unroll)):
-            r_slot = ti.static(R0 if k % 2 == 0 else R1)
             ti.loop_config(serialize=self.serial_blocks)
             for t in range(self.blocks() * self.spread):  # see LinearSolver.bind
-                if t % self.spread == 0:
-                    blk = t // self.spread
-                    if self.status[0] == 0:
-                        s = ti.Vector.zero(float, 3)
-                        for i in range(blk * self.block, self.row_end(blk)):
-                            r = system.rhs[i] - system.apply(i, x)
-                            self.r[i] = r
-                            s[0] += r.dot(r)
-                        self.store(r_slot, blk, s)
-                        self.clear(ti.static(R1 if k % 2 == 0 else R0), blk)
+                if t % self.spread == 0 and self.status[0] == 0:
+                    self._residual(system, t // self.spread, k)
             ti.loop_config(serialize=self.serial_blocks)
-            for t in range(self.blocks() * self.spread):  # see LinearSolver.bind
-                if t % self.spread == 0:
-                    blk = t // self.spread
-                    if self.status[0] == 0:
-                        bb = self.total(START)[0]
-                        rr = self.total(r_slot)[0]
-                        stop = self.converged(rr, bb, tol, floor) or base + k >= cap
-                        if not self.finish(blk, base + k, rr, bb, stop):
-                            for i in range(blk * self.block, self.row_end(blk)):
-                                x[i] += system.precondition(i, self.r[i])
+            for t in range(self.blocks() * self.spread):
+                if t % self.spread == 0 and self.status[0] == 0:
+                    self._update(system, t // self.spread, k, base, tol, floor, cap)
+
+    # The same iterations in the same order as one serial loop (as LinearSolverCG._iterate_serial).
+    @ti.kernel
+    def _iterate_serial(
+        self, system: ti.template(), count: ti.i32, base: ti.i32, tol: float, floor: float, cap: ti.i32
+    ):
+        ti.loop_config(serialize=True)
+        for k in range(count):
+            for blk in range(self.blocks()):
+                if self.status[0] == 0:
+                    self._residual(system, blk, k)
+            for blk in range(self.blocks()):
+                if self.status[0] == 0:
+                    self._update(system, blk, k, base, tol, floor, cap)
