@@ -19,8 +19,6 @@ capacity rows, of which the first `particle_count` are the scene's. The NumPy ac
 snapshot(), ...) return the live rows in both modes.
 """
 
-from __future__ import annotations
-
 import gc
 import heapq
 import itertools
@@ -65,6 +63,20 @@ def bucket(n: int) -> int:
     """The capacity for n elements: the next power of two, at least MIN_CAPACITY."""
     n = max(int(n), MIN_CAPACITY)
     return 1 << (n - 1).bit_length()
+
+
+def _absent(counts) -> bool:
+    return counts is None  # (`is` is not allowed in Taichi scope, even static)
+
+
+@ti.func
+def live(counts: ti.template(), slot: ti.template(), exact: ti.template()):
+    """A live count inside a kernel: slot `slot` of `counts`, a 0-d vector field of live counts (buckets
+    on: read at run time), or the compile-time constant `exact` when counts is None (exact sizes)."""
+    if ti.static(_absent(counts)):
+        return exact
+    else:
+        return counts[None][slot]
 
 
 # ------------------------------------------------------------------------------------- the field pool

@@ -114,25 +114,24 @@ def _current_src_info(self):
     return info.text() if type(info) is _Position else info
 
 
-def _getsourcelines(obj):
+def _by_code(table: dict, original, obj):
+    """original(obj), memoised per code object (a function's source cannot change while it exists)."""
     code = getattr(obj, "__code__", None)
     if code is None:
-        return _originals["getsourcelines"](obj)
-    found = _sources.get(code)
+        return original(obj)
+    found = table.get(code)
     if found is None:
-        found = _sources[code] = _originals["getsourcelines"](obj)
-    lines, first = found
+        found = table[code] = original(obj)
+    return found
+
+
+def _getsourcelines(obj):
+    lines, first = _by_code(_sources, _originals["getsourcelines"], obj)
     return list(lines), first
 
 
 def _getsourcefile(obj):
-    code = getattr(obj, "__code__", None)
-    if code is None:
-        return _originals["getsourcefile"](obj)
-    found = _files.get(code)
-    if found is None:
-        found = _files[code] = _originals["getsourcefile"](obj)
-    return found
+    return _by_code(_files, _originals["getsourcefile"], obj)
 
 
 # What kernel_impl reads from `textwrap`: fill (once per source line; memoised) and dedent.

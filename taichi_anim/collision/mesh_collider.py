@@ -244,20 +244,14 @@ class ColliderMesh(Collider):
             self.step = make(self, "mesh_collider_step", float, 3)
             self.prepare(0.0, 0.0)
 
+    # The live counts of vertices and faces (capacity.live).
     @ti.func
     def live_vertices(self):
-        """The mesh's vertex count (under buckets a field read; else a constant)."""
-        if ti.static(self.buckets):
-            return self.live[None][0]
-        else:
-            return self.vertex_count
+        return capacity.live(self.live, 0, self.vertex_count)
 
     @ti.func
     def live_faces(self):
-        if ti.static(self.buckets):
-            return self.live[None][1]
-        else:
-            return self.face_count
+        return capacity.live(self.live, 1, self.face_count)
 
     def prepare(self, t: float, h: float) -> None:
         """Vertices at t and t + h [s], their normals, swept face boxes and the BVH refit (rebuilt if

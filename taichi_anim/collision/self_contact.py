@@ -213,27 +213,18 @@ class SelfContact(ProximitySweeps, DisplacementGuard):
         f.from_numpy(capacity.padded(np.asarray(data).astype(np.int32), rows, np.int32))
         return f
 
+    # The live counts of vertices, triangles and edges (capacity.live).
     @ti.func
     def verts(self):
-        """Vertices in the contact (the live count under buckets: a field read; else a constant)."""
-        if ti.static(self.buckets):
-            return self.live[None][0]
-        else:
-            return self.vertex_count
+        return capacity.live(self.live, 0, self.vertex_count)
 
     @ti.func
     def tris(self):
-        if ti.static(self.buckets):
-            return self.live[None][1]
-        else:
-            return self.triangle_count
+        return capacity.live(self.live, 1, self.triangle_count)
 
     @ti.func
     def edges(self):
-        if ti.static(self.buckets):
-            return self.live[None][2]
-        else:
-            return self.edge_count
+        return capacity.live(self.live, 2, self.edge_count)
 
     def settings(self) -> dict:
         return {

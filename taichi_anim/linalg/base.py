@@ -18,8 +18,8 @@ from enum import Enum
 import taichi as ti
 
 from .. import validate
-from ..capacity import plain
-from ..runtime import backend_name, cpu_threads, data_oriented
+from ..capacity import live, plain
+from ..runtime import backend_name, compile_with, cpu_threads, data_oriented
 
 CPU_BLOCK = 256  # rows per block on the CPU (fixed, so results do not depend on the thread count)
 # Below this many rows the block loops run serially on the CPU: a parallel loop costs ~70-80 us more than
@@ -93,9 +93,8 @@ class LinearSolver:
         self._start(system, self.warm_start)
         base = 0
         floor = float(atol) ** 2
-        iterate = self._iterate
-        if self.serial_blocks and hasattr(self, "_iterate_serial"):
-            iterate = self._iterate_serial  # the same iterations as one serial loop (fewer to compile)
+        # Serial systems: the same iterations as one serial loop (`_iterate_serial`: less to compile).
+        iterate = self._iterate_serial if self.serial_blocks else self._iterate
         while True:
             iterate(system, self.check_every, base, self.tol, floor, self.max_iterations)
             base += self.check_every
@@ -145,18 +144,12 @@ class LinearSolver:
     @ti.func
     def rows(self):
         """Rows of the system: the live count under buckets (a field read), else a constant."""
-        if ti.static(self.buckets):
-            return self.live[None][0]
-        else:
-            return self.size
+        return live(self.live, 0, self.size)
 
     @ti.func
     def blocks(self):
         """Blocks of rows the loops run over (as rows())."""
-        if ti.static(self.buckets):
-            return self.live[None][1]
-        else:
-            return self.block_count
+        return live(self.live, 1, self.block_count)
 
     def _record(self, floor: float) -> LinearSolveResult:
         it = int(self.status[1])
@@ -166,6 +159,48 @@ class LinearSolver:
         self.total_iterations += it
         self.solves += 1
         return self.last
+
+    # ---- the iterations: a solver's iteration is `passes` loops over blocks of rows, block blk of pass p
+    # of iteration k (its index within the launch; base is even, so k's parity picks the slots) being
+    # `self._pass(p, system, blk, k, base, tol, floor, cap)`.
+
+    passes = 1
+
+    # check_every unrolled iterations, each inlining every term's product: the CFG passes took 24 s of the
+    # flag's 38 s cold compile and bought no run time (81 ms/frame either way). For systems whose block
+    # loops run in parallel; serial ones take `_iterate_serial`.
+    @compile_with(cfg_optimization=False)
+    @ti.kernel
+    def _iterate(
+        self,
+        system: ti.template(),
+        unroll: ti.template(),
+        base: ti.i32,
+        tol: float,
+        floor: float,
+        cap: ti.i32,
+    ):
+        for k in ti.static(range(unroll)):
+            for p in ti.static(range(self.passes)):
+                ti.loop_config(serialize=self.serial_blocks)
+                for t in range(self.blocks() * self.spread):  # see bind
+                    if t % self.spread == 0 and self.status[0] == 0:
+                        self._pass(p, system, t // self.spread, k, base, tol, floor, cap)
+
+    # The same iterations in the same order, for systems whose block loops run serially (bind: small CPU
+    # systems): one serial loop over the iterations instead of unrolled copies, so Taichi's front end and
+    # compiler see one iteration instead of check_every (the flag's warm start: 0.9 s of 1.8 s of compiling
+    # were the unrolled solver).
+    @ti.kernel
+    def _iterate_serial(
+        self, system: ti.template(), count: ti.i32, base: ti.i32, tol: float, floor: float, cap: ti.i32
+    ):
+        ti.loop_config(serialize=True)
+        for k in range(count):
+            for p in ti.static(range(self.passes)):
+                for blk in range(self.blocks()):
+                    if self.status[0] == 0:
+                        self._pass(p, system, blk, k, base, tol, floor, cap)
 
     # ---- helpers used inside the solvers' kernels (blk: a block index; one row per block on GPUs)
 

@@ -11,7 +11,7 @@ or |r| <= atol (or the iteration cap) is made at the start of an iteration.
 
 import taichi as ti
 
-from ..runtime import compile_with, data_oriented
+from ..runtime import data_oriented
 from .base import LinearSolver
 
 START, PQ0, PQ1, R0, R1 = range(5)  # R slots hold (r.r, r.z, -); the START slot (b.b, r.r, r.z)
@@ -63,8 +63,8 @@ class LinearSolverCG(LinearSolver):
                 # The residual of "iteration -1" for the first stopping test and beta.
                 self.store(R1, blk, ti.Vector([s[1], s[2], 0.0]))
 
-    # Each iteration's three loops, per block of rows, for the two forms of `_iterate` below. k is the
-    # iteration's index within the launch (base is even, so its parity picks the slots).
+    # An iteration's three passes (LinearSolver._iterate), per block of rows; k is the iteration's index
+    # within the launch (base is even, so its parity picks the slots).
     @ti.func
     def _product(self, system: ti.template(), blk, k, base, tol, floor, cap):
         pq_slot, r_new, r_old = PQ0 + k % 2, R0 + k % 2, R1 - k % 2
@@ -107,50 +107,13 @@ class LinearSolverCG(LinearSolver):
         for i in range(blk * self.block, self.row_end(blk)):
             self.p[i] = self.z[i] + beta * self.p[i]
 
-    # check_every unrolled iterations, each inlining every term's product: the CFG passes took 24 s of
-    # the flag's 38 s cold compile and bought no run time (81 ms/frame either way). Used where the block
-    # loops run in parallel; serial systems take `_iterate_serial`.
-    @compile_with(cfg_optimization=False)
-    @ti.kernel
-    def _iterate(
-        self,
-        system: ti.template(),
-        unroll: ti.template(),
-        base: ti.i32,
-        tol: float,
-        floor: float,
-        cap: ti.i32,
-    ):
-        for k in ti.static(range(unroll)):
-            ti.loop_config(serialize=self.serial_blocks)
-            for t in range(self.blocks() * self.spread):  # see LinearSolver.bind
-                if t % self.spread == 0 and self.status[0] == 0:
-                    self._product(system, t // self.spread, k, base, tol, floor, cap)
-            ti.loop_config(serialize=self.serial_blocks)
-            for t in range(self.blocks() * self.spread):
-                if t % self.spread == 0 and self.status[0] == 0:
-                    self._update(system, t // self.spread, k)
-            ti.loop_config(serialize=self.serial_blocks)
-            for t in range(self.blocks() * self.spread):
-                if t % self.spread == 0 and self.status[0] == 0:
-                    self._direction(t // self.spread, k)
+    passes = 3
 
-    # The same iterations as `_iterate` in the same order, for systems whose block loops run serially
-    # (LinearSolver.bind: small CPU systems): one serial loop over the iterations instead of unrolled
-    # copies, so Taichi's front end builds one iteration instead of check_every (the flag's warm start:
-    # 0.9 s of 1.8 s compiling were this kernel).
-    @ti.kernel
-    def _iterate_serial(
-        self, system: ti.template(), count: ti.i32, base: ti.i32, tol: float, floor: float, cap: ti.i32
-    ):
-        ti.loop_config(serialize=True)
-        for k in range(count):
-            for blk in range(self.blocks()):
-                if self.status[0] == 0:
-                    self._product(system, blk, k, base, tol, floor, cap)
-            for blk in range(self.blocks()):
-                if self.status[0] == 0:
-                    self._update(system, blk, k)
-            for blk in range(self.blocks()):
-                if self.status[0] == 0:
-                    self._direction(blk, k)
+    @ti.func
+    def _pass(self, p: ti.template(), system: ti.template(), blk, k, base, tol, floor, cap):
+        if ti.static(p == 0):
+            self._product(system, blk, k, base, tol, floor, cap)
+        elif ti.static(p == 1):
+            self._update(system, blk, k)
+        else:
+            self._direction(blk, k)

@@ -9,7 +9,7 @@ An iteration is two parallel loops: the residual with its norm, then the stoppin
 
 import taichi as ti
 
-from ..runtime import compile_with, data_oriented
+from ..runtime import data_oriented
 from .base import LinearSolver
 
 START, R0, R1 = 0, 3, 4
@@ -40,8 +40,8 @@ class LinearSolverJacobi(LinearSolver):
                     s[0] += b.dot(b)
                 self.store(START, blk, s)
 
-    # Each iteration's two loops, per block of rows, for the two forms of `_iterate` below (k: the
-    # iteration's index within the launch; base is even, so its parity picks the slots).
+    # An iteration's two passes (LinearSolver._iterate), per block of rows; k is the iteration's index
+    # within the launch (base is even, so its parity picks the slots).
     @ti.func
     def _residual(self, system: ti.template(), blk, k):
         x = ti.static(system.solution)
@@ -63,39 +63,11 @@ class LinearSolverJacobi(LinearSolver):
             for i in range(blk * self.block, self.row_end(blk)):
                 x[i] += system.precondition(i, self.r[i])
 
-    # Unrolled iterations, as in LinearSolverCG._iterate: the CFG passes cost compile time only. Serial
-    # systems take `_iterate_serial`.
-    @compile_with(cfg_optimization=False)
-    @ti.kernel
-    def _iterate(
-        self,
-        system: ti.template(),
-        unroll: ti.template(),
-        base: ti.i32,
-        tol: float,
-        floor: float,
-        cap: ti.i32,
-    ):
-        for k in ti.static(range(unroll)):
-            ti.loop_config(serialize=self.serial_blocks)
-            for t in range(self.blocks() * self.spread):  # see LinearSolver.bind
-                if t % self.spread == 0 and self.status[0] == 0:
-                    self._residual(system, t // self.spread, k)
-            ti.loop_config(serialize=self.serial_blocks)
-            for t in range(self.blocks() * self.spread):
-                if t % self.spread == 0 and self.status[0] == 0:
-                    self._update(system, t // self.spread, k, base, tol, floor, cap)
+    passes = 2
 
-    # The same iterations in the same order as one serial loop (as LinearSolverCG._iterate_serial).
-    @ti.kernel
-    def _iterate_serial(
-        self, system: ti.template(), count: ti.i32, base: ti.i32, tol: float, floor: float, cap: ti.i32
-    ):
-        ti.loop_config(serialize=True)
-        for k in range(count):
-            for blk in range(self.blocks()):
-                if self.status[0] == 0:
-                    self._residual(system, blk, k)
-            for blk in range(self.blocks()):
-                if self.status[0] == 0:
-                    self._update(system, blk, k, base, tol, floor, cap)
+    @ti.func
+    def _pass(self, p: ti.template(), system: ti.template(), blk, k, base, tol, floor, cap):
+        if ti.static(p == 0):
+            self._residual(system, blk, k)
+        else:
+            self._update(system, blk, k, base, tol, floor, cap)
