@@ -312,9 +312,15 @@ class ElementTerm(TermBounds):
         for k in range(self.adj_start[i], self.adj_start[i + 1]):
             q = self.adj_entry[k]
             e, a = q // self.arity, q % self.arity
-            ids = self.element_vertex[e]
-            for b in ti.static(range(self.arity)):
-                acc += cache.S[e, a, b] @ pf[ids[b]]
+            acc = self.add_row_product(cache, e, a, self.element_vertex[e], pf, acc)
+        return acc
+
+    @ti.func
+    def add_row_product(self, cache: ti.template(), e, a, ids, pf: ti.template(), acc):
+        """acc plus the rows of element e's S for its vertex slot a times p (a subclass with a compact
+        cache overrides it)."""
+        for b in ti.static(range(self.arity)):
+            acc += cache.S[e, a, b] @ pf[ids[b]]
         return acc
 
     # ---- diagnostics (NumPy in, NumPy out; each call launches a kernel)

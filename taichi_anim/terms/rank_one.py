@@ -4,7 +4,8 @@ Two terms linearise this way: dihedral bending (Gauss-Newton, S = (h beta + h^2)
 and the aerodynamic panels' normal drag (S_ab = (h rho C_d A |u_n| / 9) n n^T for every vertex pair,
 aero.py, i.e. s = sqrt(h rho C_d A |u_n| / 9) (n, n, n)). Storing s per vertex instead of the arity^2
 3x3 blocks takes 1/arity of the generic cache's S memory (1/3 for triangles, 1/4 for hinges), and a row
-of S p is arity dot products and one scaled vector: S_ab p_b = s_a (s_b . p_b), summed over b.
+of S p is arity dot products and one scaled vector: S_ab p_b = s_a (s_b . p_b), summed over b
+(`add_row_product`, inside ElementTerm.apply).
 
 A term mixes this in before ElementTerm and defines element_rank_one(e, X, V, t, h) -> (F, s, KV), with
 F and KV as element_linear's and s the factor; element_linear stays its full-matrix form (the
@@ -41,21 +42,16 @@ class RankOneLinear:
 
     @ti.func
     def diagonal_block(self, cache: ti.template(), e, a):
+        """S_aa = s_a s_a^T of element e (the block-Jacobi preconditioner's part)."""
         return cache.s[e, a].outer_product(cache.s[e, a])
 
     @ti.func
-    def apply(self, cache: ti.template(), i, pf: ti.template()):
-        """Row i of S p for the Vector field pf, from the rank-one factors."""
-        acc = ti.Vector.zero(float, 3)
-        for k in range(self.adj_start[i], self.adj_start[i + 1]):
-            q = self.adj_entry[k]
-            e, a = q // self.arity, q % self.arity
-            ids = self.element_vertex[e]
-            sp = 0.0
-            for b in ti.static(range(self.arity)):
-                sp += cache.s[e, b].dot(pf[ids[b]])
-            acc += sp * cache.s[e, a]
-        return acc
+    def add_row_product(self, cache: ti.template(), e, a, ids, pf: ti.template(), acc):
+        """acc plus S_ab p_b summed over b, from the rank-one factors: s_a (s_b . p_b)."""
+        sp = 0.0
+        for b in ti.static(range(self.arity)):
+            sp += cache.s[e, b].dot(pf[ids[b]])
+        return acc + sp * cache.s[e, a]
 
 
 @data_oriented
