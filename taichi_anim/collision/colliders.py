@@ -27,6 +27,9 @@ allocates it):
   motion                    a RigidMotion (USD writes it as transform ops) or None; deforming: True when
                             its vertices move on their own (USD writes surface_at per frame)
   half_space() -> (n, offset) | None   a plane's n . x = offset (USD draws six as one container)
+  allocate(reach, model)    writes what its kernels read into fields, once the Model exists (reach [m]:
+                            the largest particle radius; per-size arrays from model.new_field, so that
+                            they follow capacity buckets)
 """
 
 import math
