@@ -136,6 +136,8 @@ def test_buckets_run_the_same_physics(buckets_reset, name, frames):
     if name == "mesh":  # the particles reached the ball: the nearest rests on its faces (inside the sphere)
         gap = np.linalg.norm(x1 - (0.0, 0.2, 0.0), axis=1) - 0.2
         assert -0.01 < gap.min() < 1e-4
+        ball = model.colliders[0]
+        assert ball.buckets and ball.mesh.face_capacity == capacity.bucket(ball.face_count) > ball.face_count
     contact = stepper.solver("self-contact")
     if contact is not None:  # the sheets lie on the ball and on each other: pairs found and guarded
         assert contact.buckets and contact.tri_boxes.capacity > contact.triangle_count
