@@ -189,3 +189,19 @@ def test_demo_option_buckets_the_run_and_says_so(tmp_path, buckets_reset):
     off = json.loads((tmp_path / "off" / "run.json").read_text())
     assert "size_buckets" not in off["settings"]["model"]
     assert on["status"] == off["status"] == "complete"
+
+
+def test_a_blob_field_from_the_pool_starts_empty():
+    """A blob field made of a dropped one's fields (capacity.take, as under buckets) is the empty field
+    Blinn's sum starts from: psi 0 and no block listed, whatever the last owner evaluated."""
+    box = ((-0.3,) * 3, (0.3,) * 3)
+    first = ta.BlobField(capacity=8, sigma=0.05, bounds=box, resolution=24, make=capacity.take)
+    first.evaluate(np.zeros((1, 3)))
+    psi = first.psi
+    assert psi.to_numpy().max() > 0.5  # nodes near a lone blob's centre (psi = 1 at it)
+    del first
+    gc.collect()
+    second = ta.BlobField(capacity=8, sigma=0.05, bounds=box, resolution=24, make=capacity.take)
+    assert second.psi is psi  # the same field, handed back by the pool
+    assert not np.any(second.psi.to_numpy())
+    assert int(second.active_count[None]) == 0

@@ -102,7 +102,7 @@ class BlobField:
         self.active_count = make(self, "blob_active_count", ti.i32, ())
         # lowest and highest flagged block coordinates
         self.active_box = make(self, "blob_active_box", ti.i32, 2, (3,))
-        self.block_slot.fill(-1)
+        self._reset()  # a pooled field (capacity buckets) holds what its last owner left
         # A block's query around its centre reaches every particle within r_c of any of its nodes.
         self.block_radius = self.cutoff_radius + 0.5 * (BLOCK - 1) * self.spacing * float(np.sqrt(3.0))
         r = self.block_radius
@@ -216,6 +216,18 @@ class BlobField:
     def _evaluate(self):
         self._activate_blocks()
         self._gather_blocks()
+
+    @ti.kernel
+    def _reset(self):
+        """An empty field: psi 0 everywhere, no block flagged or listed (the state `_activate_blocks`
+        clears incrementally from)."""
+        for node in ti.grouped(self.psi):
+            self.psi[node] = 0.0
+        for b in range(self.block_count):
+            self.block_flag[b] = 0
+            self.block_slot[b] = -1
+        for _ in range(1):
+            self.active_count[None] = 0
 
     @ti.func
     def _activate_blocks(self):
