@@ -12,7 +12,7 @@ import taichi_anim as ta
 from taichi_anim import ParameterError
 from taichi_anim.runtime import CPU_SERIAL_BELOW
 from taichi_anim.spatial import BVH, aabb_ray
-from taichi_anim.spatial.lbvh import ray_inv_dir
+from taichi_anim.spatial.lbvh_query import ray_inv_dir
 
 MAX_HITS = 2048
 # The f64 tests share one tree capacity and one collector size: the same field layout gives the same

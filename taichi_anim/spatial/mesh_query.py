@@ -32,7 +32,8 @@ from ..runtime import data_oriented, float_dtype, np_float
 from .bounds import aabb_point_distance_sq, aabb_ray, aabb_triangle, fp_epsilon
 from .distance import point_triangle_closest
 from .intersect import ray_triangle
-from .lbvh import BVH, float_bytes, ray_inv_dir
+from .lbvh import BVH, float_bytes
+from .lbvh_query import ray_inv_dir
 
 
 def _query_types():
