@@ -6,8 +6,9 @@ Taichi is never initialised on import: call `taichi_anim.init(arch=...)`, or let
 start it on the CPU.
 """
 
-from . import ode, stability
+from . import ode, shapes, stability
 from .blobs import BlobField, BlobMesh, IsosurfaceMethod
+from .bodies.rigid import RigidSnapshot
 from .builder import Builder
 from .cloth import Cloth, ClothMaterial, FabricMaterial
 from .collision import CollisionMode, RigidMotion
@@ -65,6 +66,8 @@ from .watchdog import Watchdog
 __version__ = "0.1.0"
 
 __all__ = [
+    "RigidSnapshot",
+    "shapes",
     "ConvergenceError",
     "Health",
     "OutputError",

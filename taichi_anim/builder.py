@@ -414,8 +414,10 @@ class Builder(*BUILDER_PARTS):
     def finalize(self, *, seed: int = 0) -> Model:
         """Allocate the model's fields (initialises Taichi on the CPU if the application has not)."""
         seed = validate.count("seed", seed, 0, SEED_LIMIT - 1)
-        if self.particle_count == 0 and not self._emitters:
-            raise ParameterError("the scene is empty: add particles or an emitter before finalize()")
+        if self.particle_count == 0 and not self._emitters and not self.rigid_count:
+            raise ParameterError(
+                "the scene is empty: add particles, an emitter or a rigid body before finalize()"
+            )
         self._check_size()
         ensure_initialized()
         bodies, kind_settings = {}, {}
@@ -458,6 +460,7 @@ class Builder(*BUILDER_PARTS):
             raise ParameterError("add_cloth_self_contact needs a cloth: add_cloth_grid or add_cloth_mesh")
         settings = {
             **kind_settings["particles"],
+            **(kind_settings["rigid"] if self.rigid_count else {}),
             "forces": [t.settings() for t in terms],
             "colliders": [c.settings() for c in self._colliders],
             "attachments": [a.settings() for a in self._attachments],

@@ -15,7 +15,7 @@ from .errors import ParameterError
 
 # Roles tell writers and the renderer what an item is, not how to draw it.
 POINT_ROLES = ("particles", "spheres")
-MESH_ROLES = ("cloth", "surface", "collider")
+MESH_ROLES = ("cloth", "surface", "collider", "body")
 LINE_ROLES = ("trails", "guide")
 
 

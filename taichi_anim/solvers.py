@@ -32,6 +32,7 @@ contacts, dt)` in a sequence, each reading the state the previous one wrote).
 Adding a contact solver: a class with these methods in its own file, and one line in `SOLVERS` below
 (the model option it is built from); a user adds one at run time with `Stepper.add_solver(solver)`."""
 
+from .bodies.rigid import RigidDynamics
 from .collision.self_contact import SelfContact
 from .collision.spheres import ContactSpheres
 from .errors import ParameterError
@@ -42,6 +43,7 @@ REQUIRED = ("name", "substeps", "before_substep", "after_substep", "check", "set
 # The built-in solvers, in list order: (the Model attribute holding the options a Builder method
 # recorded, or None when the scene did not ask for it; the class built from them with (model, **options)).
 SOLVERS = (
+    ("rigid_dynamics", RigidDynamics),
     ("sphere_contacts", ContactSpheres),
     ("self_contact", SelfContact),
 )
@@ -86,11 +88,13 @@ def check_solver(solver) -> None:
             )
 
 
-def make_solvers(model) -> list:
-    """The model's built-in solvers, in list order: one per option the scene asked for."""
+def make_solvers(model, method=None) -> list:
+    """The model's built-in solvers, in list order: one per option the scene asked for. A solver class
+    with `takes_method` also gets the Stepper's integrator (`method=`): rigid bodies step by its scheme."""
     solvers = []
     for key, make in SOLVERS:
         options = getattr(model, key, None)
         if options is not None:
-            solvers.append(make(model, **options))
+            extra = {"method": method} if getattr(make, "takes_method", False) else {}
+            solvers.append(make(model, **options, **extra))
     return solvers

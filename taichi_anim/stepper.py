@@ -96,7 +96,7 @@ class Stepper:
         # The solvers that correct each substep the method proposes, in order (solvers.py): sphere
         # contacts (a neighbour grid, predictions, sweep buffers), then cloth self- and cloth-cloth
         # contact (hierarchies, pair lists, bounds), each when the scene asked for it; each owns its fields.
-        self.solvers = make_solvers(model)
+        self.solvers = make_solvers(model, integrator)
 
     def add_solver(self, solver, *, index: int | None = None) -> None:
         """Put `solver` (an object with the hooks of solvers.py's protocol) in the list, at the end or
@@ -139,7 +139,8 @@ class Stepper:
             self.advance(state, dt / n, n)
             return
         if dt != self._guarded_dt:
-            stability.guard(self, state, dt)
+            if model.particle_count:  # the guard bounds the particles' method
+                stability.guard(self, state, dt)
             self._guarded_dt = dt
             self._recovery = None
         if self.watchdog.derived is None:
@@ -148,7 +149,8 @@ class Stepper:
             ]
             if speeds:
                 self.watchdog.separation_speed = max(speeds)
-        self.watchdog.arm(state, dt)
+        if model.particle_count:  # the watch bounds particles; rigid bodies check themselves (solver check)
+            self.watchdog.arm(state, dt)
         if not self._recovering:
             self._keep_good(state)
             try:
@@ -462,6 +464,7 @@ class Stepper:
         model = self.model
         for s in solvers:
             s.before_substep(model, state, h)
-        method.advance_step(model, state, h)
+        if model.particle_count:  # a scene of rigid bodies only compiles and runs no particle kernel
+            method.advance_step(model, state, h)
         for s in solvers:
             s.after_substep(model, state, h, state.step_count + 1)

@@ -3,8 +3,9 @@ the Builder, Model and State inherit every kind's parts and call its hooks in th
 
 from .base import BodyKind
 from .particles import PARTICLES
+from .rigid import RIGID
 
-KINDS: tuple[BodyKind, ...] = (PARTICLES,)
+KINDS: tuple[BodyKind, ...] = (PARTICLES, RIGID)
 
 BUILDER_PARTS = tuple(k.builder for k in KINDS)
 MODEL_PARTS = tuple(k.model for k in KINDS)

@@ -56,6 +56,11 @@ class IntegratorAdaptive(Integrator):
         self.accepted = 0
         self.rejected = 0
 
+    @property
+    def rigid_scheme(self):
+        """The base method's: bodies take the Stepper's steps, not the step-doubling substeps."""
+        return self.base.rigid_scheme
+
     def settings(self) -> dict:
         """The options (base method, tol, max_rejected) and the accepted/rejected substep counts."""
         return {

@@ -50,6 +50,9 @@ class Integrator:
     fusable = False
     # What the stability guard bounds its step by (stability.py); a method without one is refused at bind.
     stability_region: StabilityRegion | None = None
+    # How rigid bodies are stepped with this method (bodies/rigid/dynamics.py): an explicit Runge-Kutta
+    # Tableau or "semi_implicit"; None: the method cannot step them (refused when a scene has bodies).
+    rigid_scheme = None
 
     def __init__(
         self,

@@ -66,6 +66,7 @@ class IntegratorImplicitEuler(Integrator):
 
     name = "implicit_euler"
     stability_region = StabilityRegion.unconditional()  # A-stable
+    rigid_scheme = "semi_implicit"  # bodies: kick, then drift and turn (no linearised system of theirs)
     order = 1
     stages = 1
     implicit = True

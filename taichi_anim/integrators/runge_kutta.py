@@ -52,6 +52,11 @@ class IntegratorRungeKutta(Integrator):
         """Its tableau's stability function (subclasses named in INTEGRATORS declare it on the class)."""
         return StabilityRegion.runge_kutta(self.tableau)
 
+    @property
+    def rigid_scheme(self) -> Tableau:
+        """Rigid bodies are stepped by the same tableau (its higher-order weights, at the step given)."""
+        return self.tableau
+
     def _allocate(self, model) -> None:
         self.error = model.new_field(self, "rk_error", float, ())
         if self.stages > 1:

@@ -18,6 +18,7 @@ class IntegratorSymplecticEuler(Integrator):
     stages = 1
     fusable = True
     stability_region = StabilityRegion.symplectic_euler()
+    rigid_scheme = "semi_implicit"  # kick, then drift and turn with the new velocities
 
     @ti.func
     def update(self, model: ti.template(), i, x0, v0, t, h):

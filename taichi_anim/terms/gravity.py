@@ -26,6 +26,10 @@ class Gravity(PointTerm):
         g = np.asarray(self.g, dtype=np.float64)
         return -float(np.sum(np.asarray(masses, dtype=np.float64) * (np.asarray(x, dtype=np.float64) @ g)))
 
+    def body_acceleration(self) -> tuple:
+        """g [m/s^2]: gravity acts on rigid bodies too (at their centres of mass)."""
+        return self.g
+
     def acceleration_bound(self) -> float:
         """|g| [m/s^2]: the watchdog lets bounds grow by free fall and counts M |g| H of release."""
         return float(np.linalg.norm(self.g))

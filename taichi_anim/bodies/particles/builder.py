@@ -235,7 +235,13 @@ class ParticleBuilder:
         """Every particle slot for finalize(): positions x (N,3) [m], velocities v (N,3) [m/s], masses
         (N,) [kg], radii (N,) [m] (added particles first, then each emitter's slots, dead at t = 0 at
         its centre), and the emitters made over their slot ranges."""
-        x, v, m, r = [*self._x], [*self._v], [*self._m], [*self._r]
+        # a scene of rigid bodies only has no particles: empty arrays, and the kind allocates nothing
+        x, v, m, r = (
+            [np.zeros((0, 3)), *self._x],
+            [np.zeros((0, 3)), *self._v],
+            [np.zeros(0), *self._m],
+            [np.zeros(0), *self._r],
+        )
         start = self.particle_count
         emitters = []
         for k, es in enumerate(self._emitters):

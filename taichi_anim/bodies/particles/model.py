@@ -21,7 +21,8 @@ class ParticleModel:
         radius (N,) [m], the emitters over their slot ranges, the trail length (0: none)."""
         n = len(x)
         self.particle_count = n
-        self.particle_capacity = capacity.bucket(n) if self.size_buckets else n
+        # Taichi refuses empty fields: a scene without particles keeps one unused row (nothing loops to it)
+        self.particle_capacity = capacity.bucket(n) if self.size_buckets else max(n, 1)
         # The live count as a 0-d field, read by kernels at run time (buckets only: else a constant).
         self.particle_live = self.new_field(self, "particle_live", ti.i32, ()) if self.size_buckets else None
         if self.size_buckets:
@@ -31,7 +32,7 @@ class ParticleModel:
         self.trail_length = trail_length
         self._x0 = np.asarray(x, dtype=np.float64)
         self._v0 = np.asarray(v, dtype=np.float64)
-        masses = np.asarray(mass, dtype=np.float64)
+        masses = np.asarray(mass, dtype=np.float64) if n else np.ones(1)
         # One mass for all: a compile-time constant instead of a field read per particle and step.
         self.uniform_mass = float(masses[0]) if np.all(masses == masses[0]) else None
         self.particle_mass = None
@@ -44,7 +45,7 @@ class ParticleModel:
             self.particle_inv_mass.from_numpy(self.padded(inv))
         self.uniform_inv_mass = 1.0 / self.uniform_mass if self.uniform_mass else 0.0
         self.per_particle_mass = self.uniform_mass is None  # kernels branch on this at compile time
-        radii = np.asarray(radius, dtype=np.float64)
+        radii = np.asarray(radius, dtype=np.float64) if n else np.zeros(1)
         # Radii [m]: all zero for point particles (a compile-time 0 then), one value, or one per particle.
         self.max_radius = float(radii.max())
         self.min_radius = float(radii.min())

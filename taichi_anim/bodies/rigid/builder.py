@@ -1,0 +1,106 @@
+"""The rigid kind's builder part: `add_rigid_body`. Each body's mass properties come from its shape and
+density (shapes.py) and are turned into the frame the dynamics runs in: the centre of mass and the
+principal axes of inertia (as MuJoCo's inertial frame), so that the inertia tensor is diagonal there."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ... import validate
+from ...errors import ParameterError
+from ...shapes import Shape
+from .quaternion import matrix_to_quat, quat_product, quat_to_matrix
+
+MAX_RIGID_BODIES = 1 << 20  # far beyond what the contact solver will serve; refused before allocating
+
+
+def principal_frame(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(moments (3,) ascending [kg m^2], rotation (3,3) whose columns are the principal axes in the
+    shape's frame, a proper rotation) of a symmetric inertia tensor."""
+    moments, axes = np.linalg.eigh(0.5 * (inertia + inertia.T))
+    if np.linalg.det(axes) < 0:
+        axes[:, 2] *= -1.0
+    return moments, axes
+
+
+def unit_quaternion(name: str, value) -> np.ndarray:
+    """An orientation (x, y, z, w), normalised; refused when not finite or far from unit length."""
+    q = validate.finite_array(name, np.asarray(value, dtype=np.float64).reshape(-1))
+    if q.shape != (4,):
+        raise ParameterError(f"{name} must be a quaternion (x, y, z, w), got {value!r}")
+    n = float(np.linalg.norm(q))
+    if not 0.9 < n < 1.1:
+        raise ParameterError(f"{name} must be a unit quaternion (x, y, z, w), got {value!r} (norm {n:.4g})")
+    return q / n
+
+
+class RigidBuilder:
+    """Builder methods of the rigid kind: add_rigid_body."""
+
+    def _init_rigid(self) -> None:
+        self._rigid: list[dict] = []
+
+    @property
+    def rigid_count(self) -> int:
+        """Rigid bodies added so far."""
+        return len(self._rigid)
+
+    def add_rigid_body(
+        self,
+        shape: Shape,
+        *,
+        density: float = 1000.0,
+        position=(0.0, 0.0, 0.0),
+        orientation=(0.0, 0.0, 0.0, 1.0),
+        velocity=(0.0, 0.0, 0.0),
+        angular_velocity=(0.0, 0.0, 0.0),
+        kinematic: bool = False,
+    ) -> int:
+        """Add a rigid body and return its index.
+
+        shape: from `ta.shapes` (Sphere, Box, Capsule, ConvexHull, Mesh), in the body's frame;
+        density [kg/m^3] (mass and inertia follow from it exactly); position [m] and orientation
+        (x, y, z, w) place the shape's frame in the world; velocity [m/s] of the centre of mass and
+        angular_velocity [rad/s], both in world axes (as Newton, Bullet and Jolt take them);
+        kinematic: the body moves at its velocities, unmoved by forces (infinite mass)."""
+        if not isinstance(shape, Shape):
+            raise ParameterError(f"shape must be one of ta.shapes (Sphere, Box, ...), got {shape!r}")
+        if len(self._rigid) >= MAX_RIGID_BODIES:
+            raise ParameterError(f"add_rigid_body: at most {MAX_RIGID_BODIES} rigid bodies")
+        props = shape.mass_properties(validate.positive("density", density))
+        moments, axes = principal_frame(props.inertia)
+        if moments[0] <= 1e-12 * moments[2]:
+            raise ParameterError(f"shape {shape.kind!r} has a degenerate inertia (moments {moments})")
+        q_shape = unit_quaternion("orientation", orientation)
+        q_principal = matrix_to_quat(axes)  # principal frame -> shape frame
+        origin = np.asarray(validate.vec3("position", position))
+        self._rigid.append(
+            dict(
+                shape=shape,
+                density=float(density),
+                mass=props.mass,
+                com=props.com,
+                inertia=props.inertia,
+                moments=moments,
+                principal=q_principal,
+                x=origin + quat_to_matrix(q_shape) @ props.com,
+                q=quat_product(q_shape, q_principal),
+                v=np.asarray(validate.vec3("velocity", velocity)),
+                w=np.asarray(validate.vec3("angular_velocity", angular_velocity)),
+                kinematic=validate.flag("kinematic", kinematic),
+            )
+        )
+        return len(self._rigid) - 1
+
+    def rigid_arrays(self) -> dict:
+        """The rigid kind's arrays for finalize (init_model's keyword arguments)."""
+        return dict(bodies=list(self._rigid))
+
+    def rigid_settings(self) -> dict:
+        """run.json's record of the bodies (shape, density, mass, kinematic)."""
+        return {
+            "rigid_bodies": [
+                {**b["shape"].settings(), **{k: b[k] for k in ("density", "mass", "kinematic")}}
+                for b in self._rigid
+            ]
+        }

@@ -1,0 +1,95 @@
+"""Unit quaternions (x, y, z, w) for rigid-body orientation, in Taichi scope and in NumPy. q rotates a
+vector as q v q*; q1 * q2 applies q2 first (Hamilton product, as Eigen, Newton and USD's quatf)."""
+
+import numpy as np
+import taichi as ti
+
+
+@ti.func
+def quat_mul(a, b):
+    """The Hamilton product a b of (x, y, z, w) quaternions."""
+    av = ti.Vector([a[0], a[1], a[2]])
+    bv = ti.Vector([b[0], b[1], b[2]])
+    v = a[3] * bv + b[3] * av + av.cross(bv)
+    return ti.Vector([v[0], v[1], v[2], a[3] * b[3] - av.dot(bv)])
+
+
+@ti.func
+def quat_matrix(q):
+    """The rotation matrix of a unit quaternion q."""
+    x, y, z, w = q[0], q[1], q[2], q[3]
+    return ti.Matrix(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+@ti.func
+def quat_rotation(w, h):
+    """The unit quaternion of a rotation by angle |w| h about w / |w| (w [rad/s], h [s]): exp(h w / 2)."""
+    angle = w.norm() * h
+    s = 0.5 * h  # sin(x)/x -> 1 as the angle vanishes: the axis part is h w / 2 then
+    if angle > 1e-8:
+        s = ti.sin(0.5 * angle) / angle * h
+    return ti.Vector([w[0] * s, w[1] * s, w[2] * s, ti.cos(0.5 * angle)])
+
+
+@ti.func
+def quat_normalized(q):
+    return q / q.norm()
+
+
+def quat_to_matrix(q) -> np.ndarray:
+    """(..., 4) unit quaternions (x, y, z, w) -> (..., 3, 3) rotation matrices."""
+    q = np.asarray(q, dtype=np.float64)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    r = np.empty(q.shape[:-1] + (3, 3))
+    r[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    r[..., 0, 1] = 2 * (x * y - z * w)
+    r[..., 0, 2] = 2 * (x * z + y * w)
+    r[..., 1, 0] = 2 * (x * y + z * w)
+    r[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    r[..., 1, 2] = 2 * (y * z - x * w)
+    r[..., 2, 0] = 2 * (x * z - y * w)
+    r[..., 2, 1] = 2 * (y * z + x * w)
+    r[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return r
+
+
+def matrix_to_quat(r) -> np.ndarray:
+    """A proper rotation matrix (3,3) -> its unit quaternion (x, y, z, w) with w >= 0 (Shepperd's
+    method: the largest of the four squared components is taken from the diagonal, the rest from it)."""
+    r = np.asarray(r, dtype=np.float64)
+    t = np.trace(r)
+    cand = np.array([r[0, 0], r[1, 1], r[2, 2], t])
+    k = int(np.argmax(cand))
+    if k == 3:
+        w = 0.5 * np.sqrt(1.0 + t)
+        q = np.array([(r[2, 1] - r[1, 2]), (r[0, 2] - r[2, 0]), (r[1, 0] - r[0, 1]), 0.0]) / (4 * w)
+        q[3] = w
+    else:
+        i, j, m = k, (k + 1) % 3, (k + 2) % 3
+        s = 0.5 * np.sqrt(1.0 + r[i, i] - r[j, j] - r[m, m])
+        q = np.empty(4)
+        q[i] = s
+        q[j] = (r[j, i] + r[i, j]) / (4 * s)
+        q[m] = (r[m, i] + r[i, m]) / (4 * s)
+        q[3] = (r[m, j] - r[j, m]) / (4 * s)
+    return q if q[3] >= 0 else -q
+
+
+def quat_product(a, b) -> np.ndarray:
+    """The Hamilton product a b of (..., 4) quaternions (x, y, z, w), in NumPy."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    av, bv, aw, bw = a[..., :3], b[..., :3], a[..., 3:], b[..., 3:]
+    v = aw * bv + bw * av + np.cross(av, bv)
+    return np.concatenate([v, aw * bw - np.sum(av * bv, axis=-1, keepdims=True)], axis=-1)
+
+
+def quat_conjugate(q) -> np.ndarray:
+    q = np.array(q, dtype=np.float64)
+    q[..., :3] *= -1.0
+    return q

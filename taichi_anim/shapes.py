@@ -1,0 +1,277 @@
+"""Rigid-body shapes and their exact mass properties (`ta.shapes`).
+
+Every shape is given in its own frame (the frame `Builder.add_rigid_body(position=, orientation=)`
+places) and answers `mass_properties(density)`: the mass, the centre of mass in that frame and the
+inertia tensor about the centre of mass, in closed form:
+- sphere, box: the textbook integrals;
+- capsule (a cylinder along the shape's y axis with two hemispherical caps): the cylinder plus the two
+  caps moved by the parallel-axis theorem (each cap's centre of mass is 3r/8 from its flat face);
+- convex hull and closed triangle mesh: the volume integrals of 1, x, y, z, x^2, ..., zx turned into
+  sums over the surface triangles by the divergence theorem (Mirtich, "Fast and Accurate Computation of
+  Polyhedral Mass Properties", JGT 1996; in the per-triangle form of Eberly, "Polyhedral Mass
+  Properties (Revisited)", 2002/2009).
+`triangles()` gives a triangle mesh of the shape (what output draws; exact for hulls and meshes)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import validate
+from .errors import ParameterError
+
+
+@dataclass(frozen=True)
+class MassProperties:
+    """mass [kg], com (3,) [m] in the shape's frame, inertia (3,3) [kg m^2] about the com, axes of the
+    shape's frame."""
+
+    mass: float
+    com: np.ndarray
+    inertia: np.ndarray
+
+
+class Shape:
+    """A rigid body's geometry in its own frame."""
+
+    kind = "shape"
+
+    def mass_properties(self, density: float) -> MassProperties:
+        """Mass, centre of mass and inertia of the shape filled at `density` [kg/m^3]."""
+        raise NotImplementedError
+
+    def triangles(self) -> tuple[np.ndarray, np.ndarray]:
+        """(vertices (V,3) [m], faces (F,3) int, counter-clockwise seen from outside)."""
+        raise NotImplementedError
+
+    def settings(self) -> dict:
+        """The shape's parameters, for run.json."""
+        raise NotImplementedError
+
+
+def _positive(name: str, value) -> float:
+    return validate.positive(name, value)
+
+
+@dataclass(frozen=True, init=False)
+class Sphere(Shape):
+    """A ball of `radius` [m] centred on the origin."""
+
+    radius: float
+    kind = "sphere"
+
+    def __init__(self, radius: float):
+        object.__setattr__(self, "radius", _positive("radius", radius))
+
+    def mass_properties(self, density: float) -> MassProperties:
+        r = self.radius
+        m = _positive("density", density) * 4.0 / 3.0 * np.pi * r**3
+        return MassProperties(m, np.zeros(3), np.eye(3) * 0.4 * m * r * r)
+
+    def triangles(self):
+        return _uv_sphere(self.radius, np.zeros(3), rings=12, segments=24)
+
+    def settings(self) -> dict:
+        return {"shape": "sphere", "radius": self.radius}
+
+
+@dataclass(frozen=True, init=False)
+class Box(Shape):
+    """A box of `half_extents` (3,) [m] centred on the origin, edges along the axes."""
+
+    half_extents: tuple
+    kind = "box"
+
+    def __init__(self, half_extents):
+        h = validate.vec3("half_extents", half_extents)
+        for c in h:
+            _positive("half_extents", c)
+        object.__setattr__(self, "half_extents", tuple(float(c) for c in h))
+
+    def mass_properties(self, density: float) -> MassProperties:
+        a, b, c = self.half_extents
+        m = _positive("density", density) * 8.0 * a * b * c
+        inertia = np.diag([b * b + c * c, a * a + c * c, a * a + b * b]) * m / 3.0
+        return MassProperties(m, np.zeros(3), inertia)
+
+    def triangles(self):
+        corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
+        faces = np.array(
+            [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+             [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]
+        )  # fmt: skip
+        return corners * np.asarray(self.half_extents), faces
+
+    def settings(self) -> dict:
+        return {"shape": "box", "half_extents": list(self.half_extents)}
+
+
+@dataclass(frozen=True, init=False)
+class Capsule(Shape):
+    """A cylinder of `radius` [m] from y = -half_length to y = +half_length [m], capped by hemispheres
+    (Y up, as Jolt's and Bullet's default capsules)."""
+
+    radius: float
+    half_length: float
+    kind = "capsule"
+
+    def __init__(self, radius: float, half_length: float):
+        object.__setattr__(self, "radius", _positive("radius", radius))
+        object.__setattr__(self, "half_length", _positive("half_length", half_length))
+
+    def mass_properties(self, density: float) -> MassProperties:
+        rho, r, h = _positive("density", density), self.radius, self.half_length
+        m_cyl = rho * np.pi * r * r * 2.0 * h
+        m_caps = rho * 4.0 / 3.0 * np.pi * r**3
+        axial = 0.5 * m_cyl * r * r + 0.4 * m_caps * r * r
+        # A cap about its own centre of mass (3r/8 from the flat face), moved to the capsule's centre:
+        # (2/5 r^2 - (3r/8)^2) + (h + 3r/8)^2 = 2/5 r^2 + h^2 + 3 h r / 4, per unit mass.
+        side = m_cyl * (r * r / 4.0 + (2.0 * h) ** 2 / 12.0) + m_caps * (0.4 * r * r + h * h + 0.75 * h * r)
+        return MassProperties(m_cyl + m_caps, np.zeros(3), np.diag([side, axial, side]))
+
+    def triangles(self):
+        v, f = _uv_sphere(self.radius, np.zeros(3), rings=12, segments=24)
+        v = v.copy()
+        v[:, 1] += np.where(v[:, 1] >= 0.0, self.half_length, -self.half_length)  # split at the equator
+        return v, f
+
+    def settings(self) -> dict:
+        return {"shape": "capsule", "radius": self.radius, "half_length": self.half_length}
+
+
+class Mesh(Shape):
+    """A closed triangle mesh: vertices (V,3) [m] and faces (F,3), counter-clockwise seen from outside
+    (a watertight, consistently oriented surface: its mass properties are those of the volume inside)."""
+
+    kind = "mesh"
+
+    def __init__(self, vertices, faces):
+        v = np.array(vertices, dtype=np.float64)
+        f = np.array(faces, dtype=np.int64)
+        if v.ndim != 2 or v.shape[1] != 3 or len(v) < 4:
+            raise ParameterError(f"vertices must be (V,3) with V >= 4, got shape {v.shape}")
+        if f.ndim != 2 or f.shape[1] != 3 or len(f) < 4:
+            raise ParameterError(f"faces must be (F,3) with F >= 4, got shape {f.shape}")
+        if not np.all(np.isfinite(v)):
+            raise ParameterError("vertices must be finite")
+        if f.min() < 0 or f.max() >= len(v):
+            raise ParameterError(f"faces index vertices 0..{len(v) - 1}, got {f.min()}..{f.max()}")
+        _check_closed(f)
+        self.vertices, self.faces = v, f
+        self.vertices.setflags(write=False)
+        self.faces.setflags(write=False)
+        if polyhedron_integrals(v, f)[0] <= 0.0:
+            raise ParameterError(
+                "the mesh encloses no volume or its faces wind clockwise seen from outside (reverse them)"
+            )
+
+    def mass_properties(self, density: float) -> MassProperties:
+        return polyhedron_mass_properties(self.vertices, self.faces, _positive("density", density))
+
+    def triangles(self):
+        return self.vertices, self.faces
+
+    def settings(self) -> dict:
+        return {"shape": self.kind, "vertices": len(self.vertices), "faces": len(self.faces)}
+
+
+class ConvexHull(Mesh):
+    """The convex hull of `points` (N,3) [m] (Qhull, through Open3D)."""
+
+    kind = "convex_hull"
+
+    def __init__(self, points):
+        p = np.array(points, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3 or len(p) < 4 or not np.all(np.isfinite(p)):
+            raise ParameterError(f"points must be finite (N,3) with N >= 4, got shape {p.shape}")
+        import open3d as o3d
+
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
+        try:
+            hull, _ = cloud.compute_convex_hull()
+        except RuntimeError as e:  # Qhull refuses flat or degenerate sets
+            raise ParameterError(f"points span no volume: {e}") from None
+        v, f = np.asarray(hull.vertices), np.asarray(hull.triangles)
+        if polyhedron_integrals(v, f)[0] < 0.0:
+            f = f[:, ::-1]
+        super().__init__(v, f)
+
+
+def _check_closed(faces: np.ndarray) -> None:
+    """Each undirected edge in exactly two faces, once in each direction (closed and oriented)."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    directed = np.unique(e, axis=0, return_counts=True)[1]
+    undirected = np.unique(np.sort(e, axis=1), axis=0, return_counts=True)[1]
+    if directed.max() > 1 or np.any(undirected != 2):
+        raise ParameterError(
+            "the mesh must be closed and consistently oriented: every edge shared by exactly two faces, "
+            "in opposite directions"
+        )
+
+
+def polyhedron_integrals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The volume integrals of (1, x, y, z, x^2, y^2, z^2, xy, yz, zx) over a closed, outward-wound
+    triangle mesh (Eberly 2002, "Polyhedral Mass Properties (Revisited)": per triangle, the divergence
+    theorem with the subexpressions f1, f2, f3, g0, g1, g2 of each coordinate)."""
+    p = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]  # (F, 3 corners, 3 coords)
+    w0, w1, w2 = p[:, 0], p[:, 1], p[:, 2]
+    d = np.cross(w1 - w0, w2 - w0)  # (F,3): twice the area times the normal
+    t0 = w0 + w1
+    f1 = t0 + w2
+    t1 = w0 * w0
+    t2 = t1 + w1 * t0
+    f2 = t2 + w2 * f1
+    f3 = w0 * t1 + w1 * t2 + w2 * f2
+    g0, g1, g2 = f2 + w0 * (f1 + w0), f2 + w1 * (f1 + w1), f2 + w2 * (f1 + w2)
+    x, y, z = 0, 1, 2
+    out = np.empty(10)
+    out[0] = np.sum(d[:, x] * f1[:, x]) / 6.0
+    out[1:4] = np.sum(d * f2, axis=0) / 24.0
+    out[4:7] = np.sum(d * f3, axis=0) / 60.0
+    # the products: xy from the x components, yz from y, zx from z
+    out[7] = np.sum(d[:, x] * (w0[:, y] * g0[:, x] + w1[:, y] * g1[:, x] + w2[:, y] * g2[:, x])) / 120.0
+    out[8] = np.sum(d[:, y] * (w0[:, z] * g0[:, y] + w1[:, z] * g1[:, y] + w2[:, z] * g2[:, y])) / 120.0
+    out[9] = np.sum(d[:, z] * (w0[:, x] * g0[:, z] + w1[:, x] * g1[:, z] + w2[:, x] * g2[:, z])) / 120.0
+    return out
+
+
+def polyhedron_mass_properties(vertices, faces, density: float) -> MassProperties:
+    """Mass properties of the solid a closed, outward-wound triangle mesh encloses, at `density`."""
+    i = polyhedron_integrals(vertices, faces) * density
+    m = i[0]
+    c = i[1:4] / m
+    xx, yy, zz, xy, yz, zx = i[4], i[5], i[6], i[7], i[8], i[9]
+    inertia = np.array(
+        [[yy + zz, -xy, -zx],
+         [-xy, xx + zz, -yz],
+         [-zx, -yz, xx + yy]]
+    )  # fmt: skip
+    # about the centre of mass (parallel-axis theorem)
+    inertia -= m * (np.dot(c, c) * np.eye(3) - np.outer(c, c))
+    return MassProperties(float(m), c, inertia)
+
+
+def _uv_sphere(radius: float, centre: np.ndarray, *, rings: int, segments: int):
+    """A closed latitude-longitude sphere (poles as single vertices), faces wound outwards. `rings` is
+    even, so a ring of vertices lies on the equator (the capsule splits its halves there)."""
+    theta = np.linspace(0.0, np.pi, rings + 1)[1:-1]
+    phi = np.linspace(0.0, 2.0 * np.pi, segments, endpoint=False)
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    ring = np.stack([np.sin(t) * np.cos(p), np.cos(t), -np.sin(t) * np.sin(p)], axis=-1).reshape(-1, 3)
+    v = np.vstack([[0.0, 1.0, 0.0], ring, [0.0, -1.0, 0.0]]) * radius + centre
+    faces = []
+    s = segments
+    for j in range(s):
+        faces.append([0, 1 + j, 1 + (j + 1) % s])
+    for r in range(rings - 2):
+        for j in range(s):
+            a, b = 1 + r * s + j, 1 + r * s + (j + 1) % s
+            faces += [[a, a + s, b + s], [a, b + s, b]]
+    south, last = len(v) - 1, 1 + (rings - 2) * s
+    for j in range(s):
+        faces.append([south, last + (j + 1) % s, last + j])
+    return v, np.array(faces, dtype=np.int64)
+
+
+__all__ = ["Box", "Capsule", "ConvexHull", "MassProperties", "Mesh", "Shape", "Sphere"]
