@@ -52,7 +52,7 @@ class Model(*MODEL_PARTS):
         self.colliders = list(colliders)
         self.collider_count = len(self.colliders)
         for c in self.colliders:  # moving and mesh colliders write their keyframes / geometry into fields
-            c.allocate(reach=self.max_radius, model=self)
+            c.allocate(reach=max(self.max_radius, self.rigid_reach), model=self)
         self._prepared_colliders = tuple(c for c in self.colliders if c.needs_prepare)
         # Attachments: pinned particles put on animated targets at the end of each step.
         self.attachments = tuple(attachments)

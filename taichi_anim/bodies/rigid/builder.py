@@ -9,9 +9,13 @@ import numpy as np
 from ... import validate
 from ...errors import ParameterError
 from ...shapes import Shape
+from .geometry import contact_geometry
 from .quaternion import matrix_to_quat, quat_product, quat_to_matrix
 
-MAX_RIGID_BODIES = 1 << 20  # far beyond what the contact solver will serve; refused before allocating
+MAX_RIGID_BODIES = 1 << 20
+CONTACT_DEFAULTS = dict(
+    iterations=8, relax_iterations=4, beta=0.2, slop=0.005, max_push=3.0, bounce_speed=1.0, capacity=None
+)  # far beyond what the contact solver will serve; refused before allocating
 
 
 def principal_frame(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -39,6 +43,37 @@ class RigidBuilder:
 
     def _init_rigid(self) -> None:
         self._rigid: list[dict] = []
+        self._rigid_contacts: dict | None = dict(CONTACT_DEFAULTS)
+
+    def set_rigid_contacts(
+        self,
+        *,
+        enabled: bool = True,
+        iterations: int = 8,
+        relax_iterations: int = 4,
+        beta: float = 0.2,
+        slop: float = 0.005,
+        max_push: float = 3.0,
+        bounce_speed: float = 1.0,
+        capacity: int | None = None,
+    ) -> None:
+        """Options of the contacts between rigid bodies and with colliders (on by default):
+        iterations and relax_iterations: sweeps of the solver per step (biased, then relaxed); beta in
+        (0, 1]: the fraction of a penetration past `slop` [m] pushed out per step, at most `max_push`
+        [m/s]; bounce_speed [m/s]: slower approaches do not bounce; capacity: contacts held per step
+        (default from the bodies' points and the colliders). enabled=False: bodies pass through."""
+        if not validate.flag("enabled", enabled):
+            self._rigid_contacts = None
+            return
+        self._rigid_contacts = dict(
+            iterations=validate.count("iterations", iterations, 1, 10_000),
+            relax_iterations=validate.count("relax_iterations", relax_iterations, 0, 10_000),
+            beta=validate.in_range("beta", beta, 0.0, 1.0),
+            slop=validate.non_negative("slop", slop),
+            max_push=validate.non_negative("max_push", max_push),
+            bounce_speed=validate.non_negative("bounce_speed", bounce_speed),
+            capacity=None if capacity is None else validate.count("capacity", capacity, 1, 1 << 24),
+        )
 
     @property
     def rigid_count(self) -> int:
@@ -55,6 +90,8 @@ class RigidBuilder:
         velocity=(0.0, 0.0, 0.0),
         angular_velocity=(0.0, 0.0, 0.0),
         kinematic: bool = False,
+        friction: float = 0.5,
+        restitution: float = 0.0,
     ) -> int:
         """Add a rigid body and return its index.
 
@@ -62,7 +99,9 @@ class RigidBuilder:
         density [kg/m^3] (mass and inertia follow from it exactly); position [m] and orientation
         (x, y, z, w) place the shape's frame in the world; velocity [m/s] of the centre of mass and
         angular_velocity [rad/s], both in world axes (as Newton, Bullet and Jolt take them);
-        kinematic: the body moves at its velocities, unmoved by forces (infinite mass)."""
+        kinematic: the body moves at its velocities, unmoved by forces (infinite mass); friction: its
+        Coulomb coefficient (a contact takes the geometric mean of its two sides', as Box2D and Jolt);
+        restitution in [0, 1] (a contact takes the larger of its two sides')."""
         if not isinstance(shape, Shape):
             raise ParameterError(f"shape must be one of ta.shapes (Sphere, Box, ...), got {shape!r}")
         if len(self._rigid) >= MAX_RIGID_BODIES:
@@ -88,13 +127,16 @@ class RigidBuilder:
                 v=np.asarray(validate.vec3("velocity", velocity)),
                 w=np.asarray(validate.vec3("angular_velocity", angular_velocity)),
                 kinematic=validate.flag("kinematic", kinematic),
+                friction=validate.non_negative("friction", friction),
+                restitution=validate.in_range("restitution", restitution, 0.0, 1.0),
+                geometry=contact_geometry(shape, props.com, axes),
             )
         )
         return len(self._rigid) - 1
 
     def rigid_arrays(self) -> dict:
         """The rigid kind's arrays for finalize (init_model's keyword arguments)."""
-        return dict(bodies=list(self._rigid))
+        return dict(bodies=list(self._rigid), contacts=self._rigid_contacts)
 
     def rigid_settings(self) -> dict:
         """run.json's record of the bodies (shape, density, mass, kinematic)."""

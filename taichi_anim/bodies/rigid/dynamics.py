@@ -25,6 +25,7 @@ import taichi as ti
 
 from ...errors import DivergenceError, ParameterError
 from ...runtime import data_oriented
+from .contacts import RigidContacts, default_capacity
 from .quaternion import quat_matrix, quat_mul, quat_normalized, quat_rotation
 
 # DLM's splitting: (principal axis, fraction of the step), symmetric, so the composition is second order.
@@ -94,7 +95,7 @@ class RigidDynamics:
     name = "rigid bodies"
     takes_method = True  # make_solvers passes the Stepper's integrator
 
-    def __init__(self, model, *, method):
+    def __init__(self, model, *, method, contacts=None):
         scheme = getattr(method, "rigid_scheme", None)
         if scheme is None:
             raise ParameterError(
@@ -104,11 +105,27 @@ class RigidDynamics:
         self.method_name = method.name
         self.gravity = body_acceleration(model)
         self._bad = ti.field(ti.i32, shape=())
+        self.contact_options = dict(contacts or {})
+        self.contacts = None
+        touching = model.rigid_count > 1 or model.collider_count > 0
+        if contacts is not None and touching:
+            if not isinstance(scheme, str):
+                raise ParameterError(
+                    f"integrator {method.name!r} steps rigid bodies in free flight only: their contacts need "
+                    f"a semi-implicit method ('symplectic_euler' or 'implicit_euler'), or "
+                    f"Builder.set_rigid_contacts(enabled=False)"
+                )
+            options = dict(contacts)
+            options["capacity"] = options.get("capacity") or default_capacity(model)
+            self.contacts = RigidContacts(model, **options)
 
     def settings(self) -> dict:
         """The scheme and the bodies' acceleration, for run.json."""
         scheme = self.scheme if isinstance(self.scheme, str) else f"runge_kutta:{self.scheme.name}"
-        return {"integrator": self.method_name, "scheme": scheme, "gravity": list(self.gravity)}
+        out = {"integrator": self.method_name, "scheme": scheme, "gravity": list(self.gravity)}
+        if self.contacts is not None:
+            out["contacts"] = self.contact_options
+        return out
 
     def substeps(self, model, state, dt: float) -> int:
         return 1
@@ -117,13 +134,25 @@ class RigidDynamics:
         pass
 
     def after_substep(self, model, state, h: float, step: int) -> None:
-        if isinstance(self.scheme, str):
-            self._semi_implicit(model, state, h)
-        else:
+        if not isinstance(self.scheme, str):
             self._runge_kutta(model, state, h)
+            return
+        self._kick(model, state, h)
+        c = self.contacts
+        if c is not None:
+            c.detect(model, state, state.time)
+            c.prepare(model, state, h)
+            c.solve(model, state, c.iterations, 0)
+        self._drift(model, state, h)
+        if c is not None:
+            c.solve(model, state, c.relax_iterations, 1)
+            c.restitute(model, state)
+            c.store()
 
     def check(self, state) -> None:
-        """DivergenceError if a body's pose or velocity is no longer finite."""
+        """DivergenceError if a body's pose or velocity is no longer finite, or the contacts overflowed."""
+        if self.contacts is not None:
+            self.contacts.check()
         bad = self._find_bad(state.model, state)
         if bad >= 0:
             raise DivergenceError(
@@ -147,19 +176,29 @@ class RigidDynamics:
         return ti.Vector(self.gravity, dt=float) + state.rigid_force[i] * model.rigid_inv_mass[i]
 
     @ti.kernel
-    def _semi_implicit(self, model: ti.template(), state: ti.template(), h: float):
+    def _kick(self, model: ti.template(), state: ti.template(), h: float):
+        """Velocities by the forces and torques of the step: v += h a, w += h I_w^-1 tau (L += h tau)."""
+        for i in range(model.live_rigid()):
+            if model.rigid_inv_mass[i] > 0.0:
+                q = state.rigid_q[i]
+                state.rigid_v[i] += h * self._linear_accel(model, state, i)
+                mom = angular_momentum(q, state.rigid_w[i], model.rigid_inv_moments[i])
+                state.rigid_w[i] = angular_velocity(
+                    q, mom + h * state.rigid_torque[i], model.rigid_inv_moments[i]
+                )
+
+    @ti.kernel
+    def _drift(self, model: ti.template(), state: ti.template(), h: float):
+        """Poses by the (corrected) velocities: x += h v, and the torque-free turn of L = I_w w."""
         for i in range(model.live_rigid()):
             x, q, v, w = state.rigid_x[i], state.rigid_q[i], state.rigid_v[i], state.rigid_w[i]
             inv = model.rigid_inv_moments[i]
+            state.rigid_x[i] = x + h * v
             if model.rigid_inv_mass[i] == 0.0:  # kinematic: its velocities, exactly
-                state.rigid_x[i] = x + h * v
                 state.rigid_q[i] = quat_normalized(quat_mul(quat_rotation(w, h), q))
             else:
-                v1 = v + h * self._linear_accel(model, state, i)
-                mom = angular_momentum(q, w, inv) + h * state.rigid_torque[i]
+                mom = angular_momentum(q, w, inv)
                 q1 = free_rotation(q, mom, inv, h)
-                state.rigid_v[i] = v1
-                state.rigid_x[i] = x + h * v1
                 state.rigid_q[i] = q1
                 state.rigid_w[i] = angular_velocity(q1, mom, inv)
 

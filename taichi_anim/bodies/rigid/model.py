@@ -5,6 +5,7 @@ import numpy as np
 import taichi as ti
 
 from ... import capacity
+from ...errors import ParameterError
 from ...runtime import data_oriented, np_float
 
 
@@ -17,7 +18,7 @@ class RigidModel:
     bool; rigid_shapes: the shapes. Fields for kernels (None without bodies): rigid_inv_mass (B,)
     [1/kg] and rigid_inv_moments (B,3) [1/(kg m^2)] in the principal frame (0 for kinematic bodies)."""
 
-    def _init_rigid(self, *, bodies) -> None:
+    def _init_rigid(self, *, bodies, contacts=None) -> None:
         b = len(bodies)
         self.rigid_count = b
         self.rigid_shapes = tuple(x["shape"] for x in bodies)
@@ -32,9 +33,10 @@ class RigidModel:
         for a in (self.rigid_mass, self.rigid_inertia, self.rigid_com, self.rigid_kinematic):
             a.setflags(write=False)
         # The options the Stepper builds the bodies' solver from (solvers.SOLVERS): none to give.
-        self.rigid_dynamics = {} if b else None
+        self.rigid_dynamics = dict(contacts=contacts) if b else None
         self.rigid_capacity = capacity.bucket(b) if self.size_buckets else b
         self.rigid_live = self.rigid_inv_mass = self.rigid_inv_moments = None
+        self.rigid_reach = 0.0
         if not b:
             return
         if self.size_buckets:
@@ -46,6 +48,7 @@ class RigidModel:
         self.rigid_inv_moments = self.rigid_array(self, "rigid_inv_moments", dims=(3,))
         inv = np.where(dynamic[:, None], 1.0 / self.rigid_moments, 0.0)
         self.rigid_inv_moments.from_numpy(self.rigid_padded(inv))
+        self._init_rigid_geometry(bodies)
 
     def rigid_array(self, owner, role: str, dtype=float, dims: tuple = ()):
         """A field of rigid_capacity rows with elements of `dims`, for `owner` (pooled under buckets)."""
@@ -62,3 +65,49 @@ class RigidModel:
             return self.rigid_live[None]
         else:
             return self.rigid_count
+
+    def _init_rigid_geometry(self, bodies) -> None:
+        """The contact geometry of every body (geometry.py) as fields: its points (rigid_points from
+        rigid_point_start[i] to rigid_point_start[i + 1], with rigid_point_radius), its signed distance
+        (rigid_round: a core segment rigid_seg0-rigid_seg1 of radius rigid_radius; else the planes
+        rigid_planes from rigid_plane_start[i]), rigid_bound (sphere radius about the com) and
+        rigid_half (OBB half extents along the principal axes), all in the principal frame; and its
+        rigid_friction and rigid_restitution."""
+        geo = [x["geometry"] for x in bodies]
+        points = np.concatenate([g["points"] for g in geo])
+        planes = np.concatenate([g["planes"] for g in geo])
+        if len(points) > self.MAX_RIGID_POINTS:
+            raise ParameterError(
+                f"rigid bodies: {len(points)} contact points (mesh vertices) exceed {self.MAX_RIGID_POINTS}"
+            )
+        self.rigid_point_count = len(points)
+        rows = capacity.bucket if self.size_buckets else (lambda n: max(n, 1))
+        starts = lambda key: np.concatenate([[0], np.cumsum([len(g[key]) for g in geo])]).astype(np.int32)
+
+        def put(name, values, shape, dtype=float, dims=()):
+            f = self.new_field(self, name, dtype, shape, dims)
+            a = np.zeros((shape, *dims))
+            a[: len(values)] = values
+            f.from_numpy(a.astype(np.int32 if dtype == ti.i32 else np_float()))
+            setattr(self, name, f)
+
+        cap = self.rigid_capacity
+        put("rigid_point_start", starts("points"), cap + 1, ti.i32)
+        put("rigid_points", points, rows(len(points)), dims=(3,))
+        put("rigid_point_radius", np.concatenate([g["point_radius"] for g in geo]), rows(len(points)))
+        put("rigid_plane_start", starts("planes"), cap + 1, ti.i32)
+        put("rigid_planes", planes, rows(len(planes)), dims=(4,))
+        put("rigid_round", [int(g["round"]) for g in geo], cap, ti.i32)
+        put("rigid_seg0", [g["segment"][0] for g in geo], cap, dims=(3,))
+        put("rigid_seg1", [g["segment"][1] for g in geo], cap, dims=(3,))
+        put("rigid_radius", [g["radius"] for g in geo], cap)
+        put("rigid_bound", [g["bound"] for g in geo], cap)
+        put("rigid_half", [g["half_extents"] for g in geo], cap, dims=(3,))
+        put("rigid_friction", [x["friction"] for x in bodies], cap)
+        put("rigid_restitution", [x["restitution"] for x in bodies], cap)
+        self.rigid_reach = float(max(g["radius"] for g in geo)) + self.RIGID_MARGIN
+
+    MAX_RIGID_POINTS = 1 << 24
+    # Contacts are made from this far apart [m] (speculative: the solver lets the gap close within the
+    # step, no further), as Box2D's and Jolt's speculative distance.
+    RIGID_MARGIN = 0.02

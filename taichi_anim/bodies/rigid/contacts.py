@@ -1,0 +1,346 @@
+"""Rigid contacts: detection (narrow_phase.py) and sequential impulses with warm starting and Coulomb
+friction (Catto, "Iterative Dynamics with Temporal Coherence", GDC 2005, and "Fast and Simple Physics
+using Sequential Impulses", GDC 2006: accumulated impulses clamped, normal >= 0 and friction within the
+cone mu lambda_n), with the soft step of Box2D v3 (Catto, "Solver2D", 2024): the biased solve pushes
+penetrations out at beta / h of their depth past a slop (at most `max_push` m/s), the positions move,
+then relaxation iterations without the bias take that push back out of the velocities, so stacks do not
+gain energy from their own correction. Restitution is a last pass (restitute) on contacts that approached
+faster than `bounce_speed` and were not already pushing in the step before.
+
+Everything runs serially on the CPU (Gauss-Seidel over the contacts, in the order they were found), so
+results are deterministic at any thread count."""
+
+import numpy as np
+import taichi as ti
+
+from ...errors import DivergenceError
+from ...runtime import data_oriented
+from .narrow_phase import NO_BODY, body_sdf, obb_overlap, pair_normal, pose, support
+
+CASCADE_LEVELS = ("pairs", "spheres", "aabb", "obb", "touching")
+
+
+@ti.func
+def tangent_basis(n):
+    """Two unit tangents completing unit n to an orthonormal basis (Duff et al., "Building an Orthonormal
+    Basis, Revisited", JCGT 2017, listing 3): continuous except across n.z = 0."""
+    sign = 1.0 if n[2] >= 0.0 else -1.0
+    a = -1.0 / (sign + n[2])
+    b = n[0] * n[1] * a
+    t1 = ti.Vector([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]])
+    t2 = ti.Vector([b, sign + n[1] * n[1] * a, -n[1]])
+    return t1, t2
+
+
+@data_oriented
+class RigidContacts:
+    """The contact buffers and kernels of the bodies' solver. iterations / relax_iterations: sweeps of the
+    biased solve and of the relaxation per step; beta: the fraction of a penetration pushed out per step;
+    slop [m]: the penetration left alone; max_push [m/s]; bounce_speed [m/s]: approaches slower than this
+    do not bounce; capacity: contacts held (DivergenceError from check() when a step finds more)."""
+
+    def __init__(self, model, *, iterations, relax_iterations, beta, slop, max_push, bounce_speed, capacity):
+        self.iterations = iterations
+        self.relax_iterations = relax_iterations
+        self.beta, self.slop, self.max_push, self.bounce_speed = beta, slop, max_push, bounce_speed
+        self.margin = model.RIGID_MARGIN
+        self.capacity = capacity
+        self.colliders = tuple(model.colliders)
+        cap = capacity
+        make = model.new_field
+        vec = dict(dims=(3,))
+        self.a = make(self, "rc_a", ti.i32, cap)
+        self.b = make(self, "rc_b", ti.i32, cap)
+        self.key = make(self, "rc_key", ti.i64, cap)
+        self.point = make(self, "rc_point", float, cap, **vec)
+        self.normal = make(self, "rc_normal", float, cap, **vec)  # from b towards a
+        self.sep = make(self, "rc_sep", float, cap)
+        self.surface_v = make(self, "rc_surface_v", float, cap, **vec)
+        self.mu = make(self, "rc_mu", float, cap)
+        self.e = make(self, "rc_e", float, cap)
+        self.ra = make(self, "rc_ra", float, cap, **vec)
+        self.rb = make(self, "rc_rb", float, cap, **vec)
+        self.t1 = make(self, "rc_t1", float, cap, **vec)
+        self.t2 = make(self, "rc_t2", float, cap, **vec)
+        self.k = make(self, "rc_k", float, cap, **vec)  # effective masses along n, t1, t2
+        self.target = make(self, "rc_target", float, cap, dims=(2,))  # biased, relaxed normal speeds
+        self.bounce = make(self, "rc_bounce", float, cap)  # the normal speed after a bounce, or 0
+        self.impulse = make(self, "rc_impulse", float, cap, **vec)  # accumulated (n, t1, t2) [N s]
+        self.prev_key = make(self, "rc_prev_key", ti.i64, cap)
+        self.prev_impulse = make(self, "rc_prev_impulse", float, cap, **vec)  # world vector [N s]
+        self.count = make(self, "rc_count", ti.i32, ())
+        self.prev_count = make(self, "rc_prev_count", ti.i32, ())
+        self.found = make(self, "rc_found", ti.i32, ())  # contacts found, also past the capacity
+        self.cascade_counts = make(self, "rc_cascade", ti.i32, len(CASCADE_LEVELS))
+        self.inv_inertia = model.rigid_array(self, "rc_inv_inertia", dims=(3, 3))  # world, per body
+        self.prev_count[None] = 0
+        # read at run time (not compile-time constants): a scene of another size compiles nothing new
+        self.sizes = make(self, "rc_sizes", ti.i64, 3)
+        self.sizes.from_numpy(
+            np.array([capacity, model.rigid_count + len(self.colliders), max(model.rigid_point_count, 1)])
+        )
+
+    def cascade(self) -> dict:
+        """Pairs of bodies that reached each level of the cascade in the last step."""
+        return dict(zip(CASCADE_LEVELS, (int(c) for c in self.cascade_counts.to_numpy()), strict=True))
+
+    def check(self) -> None:
+        """DivergenceError when the last step found more contacts than the buffers hold."""
+        found = int(self.found[None])
+        if found > self.capacity:
+            raise DivergenceError(
+                f"rigid contacts: {found} found, the buffers hold {self.capacity} "
+                f"(Builder.set_rigid_contacts(capacity=...))",
+                quantity="rigid_contacts",
+                value=found,
+            )
+
+    # -- detection --------------------------------------------------------------------------------------
+
+    @ti.func
+    def _add(self, model: ti.template(), a, b, side, point, p, n, sep, vs, mu, e, other):
+        slot = self.found[None]
+        self.found[None] += 1
+        if slot < self.sizes[0]:
+            self.a[slot] = a
+            self.b[slot] = b
+            self.key[slot] = ((ti.i64(a) * self.sizes[1] + other) * 2 + side) * self.sizes[2] + point
+            self.point[slot] = p
+            self.normal[slot] = n
+            self.sep[slot] = sep
+            self.surface_v[slot] = vs
+            self.mu[slot] = mu
+            self.e[slot] = e
+
+    @ti.func
+    def _points_in(self, model: ti.template(), state: ti.template(), a, b, side, pair_n, face):
+        """Body `a`'s points against body `b`'s signed distance (side 0), or b's against a's (side 1);
+        contacts are stored with the lower index first and the normal from b towards a. Two polytopes
+        share one normal, the pair's separating-axis normal `pair_n` (pair_normal), with each point's
+        gap measured along it from `face` (b's extent along it for side 0, a's for side 1): a corner on a
+        corner would otherwise take any face's normal. Round shapes take the signed distance's normal."""
+        src, dst = a, b
+        if side == 1:
+            src, dst = b, a
+        xs, rs = pose(state, src)
+        xd, rd = pose(state, dst)
+        mu = ti.sqrt(model.rigid_friction[a] * model.rigid_friction[b])
+        e = ti.max(model.rigid_restitution[a], model.rigid_restitution[b])
+        for k in range(model.rigid_point_start[src], model.rigid_point_start[src + 1]):
+            p = xs + rs @ model.rigid_points[k]
+            radius = model.rigid_point_radius[k]
+            d, n = body_sdf(model, dst, xd, rd, p)
+            sep = d - radius
+            if sep < self.margin:
+                normal = n if side == 0 else -n
+                point = p - radius * n
+                if pair_n.norm_sqr() > 0.0:
+                    normal = pair_n
+                    sep = pair_n.dot(p) - face if side == 0 else face - pair_n.dot(p)
+                if sep < self.margin:
+                    self._add(model, a, b, side, k, point, normal, sep, ti.Vector.zero(float, 3), mu, e, b)
+
+    @ti.kernel
+    def detect(self, model: ti.template(), state: ti.template(), t: float):
+        """Every contact of the bodies' current poses (time t [s] for moving colliders)."""
+        self.found[None] = 0
+        for level in ti.static(range(len(CASCADE_LEVELS))):
+            self.cascade_counts[level] = 0
+        ti.loop_config(serialize=True)
+        for a in range(model.live_rigid()):
+            xa, ra = pose(state, a)
+            for b in range(a + 1, model.live_rigid()):
+                if model.rigid_inv_mass[a] == 0.0 and model.rigid_inv_mass[b] == 0.0:
+                    continue
+                self.cascade_counts[0] += 1
+                xb, rb = pose(state, b)
+                d = xb - xa
+                if d.norm() > model.rigid_bound[a] + model.rigid_bound[b] + self.margin:
+                    continue
+                self.cascade_counts[1] += 1
+                reach = ti.abs(ra) @ model.rigid_half[a] + ti.abs(rb) @ model.rigid_half[b] + self.margin
+                if (ti.abs(d) > reach).any():
+                    continue
+                self.cascade_counts[2] += 1
+                if not obb_overlap(model.rigid_half[a], model.rigid_half[b], ra, rb, d, self.margin):
+                    continue
+                self.cascade_counts[3] += 1
+                before = self.found[None]
+                pair_n = ti.Vector.zero(float, 3)
+                faces = ti.Vector.zero(float, 2)
+                if model.rigid_round[a] == 0 and model.rigid_round[b] == 0:
+                    pair_n = pair_normal(model, a, xa, ra, b, xb, rb)
+                    faces = ti.Vector(
+                        [support(model, b, xb, rb, pair_n), -support(model, a, xa, ra, -pair_n)]
+                    )
+                for side in range(2):
+                    self._points_in(model, state, a, b, side, pair_n, faces[side])
+                if self.found[None] > before:
+                    self.cascade_counts[4] += 1
+            if model.rigid_inv_mass[a] > 0.0:
+                self._collider_contacts(model, a, xa, ra, t)
+        self.count[None] = ti.min(self.found[None], ti.i32(self.sizes[0]))
+
+    @ti.func
+    def _collider_contacts(self, model: ti.template(), a, xa, ra, t):
+        for c, collider in ti.static(tuple(enumerate(self.colliders))):
+            mu = ti.sqrt(model.rigid_friction[a] * collider.friction)
+            e = ti.max(model.rigid_restitution[a], collider.restitution)
+            for k in range(model.rigid_point_start[a], model.rigid_point_start[a + 1]):
+                p = xa + ra @ model.rigid_points[k]
+                radius = model.rigid_point_radius[k]
+                d, n, vs = collider.contact(p, t)
+                sep = d - radius
+                if sep < self.margin:
+                    self._add(
+                        model, a, NO_BODY, 0, k, p - radius * n, n, sep, vs, mu, e, model.rigid_count + c
+                    )
+
+    # -- the solve --------------------------------------------------------------------------------------
+
+    @ti.func
+    def _relative_velocity(self, state: ti.template(), c):
+        a, b = self.a[c], self.b[c]
+        v = state.rigid_v[a] + state.rigid_w[a].cross(self.ra[c]) - self.surface_v[c]
+        if b != NO_BODY:
+            v -= state.rigid_v[b] + state.rigid_w[b].cross(self.rb[c])
+        return v
+
+    @ti.func
+    def _apply(self, model: ti.template(), state: ti.template(), c, impulse):
+        """Impulse [N s] on a at its anchor, and minus it on b."""
+        a, b = self.a[c], self.b[c]
+        state.rigid_v[a] += impulse * model.rigid_inv_mass[a]
+        state.rigid_w[a] += self.inv_inertia[a] @ self.ra[c].cross(impulse)
+        if b != NO_BODY:
+            state.rigid_v[b] -= impulse * model.rigid_inv_mass[b]
+            state.rigid_w[b] -= self.inv_inertia[b] @ self.rb[c].cross(impulse)
+
+    @ti.func
+    def _mass_along(self, model: ti.template(), c, u):
+        a, b = self.a[c], self.b[c]
+        ka = self.inv_inertia[a] @ self.ra[c].cross(u)
+        k = model.rigid_inv_mass[a] + u.dot(ka.cross(self.ra[c]))
+        if b != NO_BODY:
+            kb = self.inv_inertia[b] @ self.rb[c].cross(u)
+            k += model.rigid_inv_mass[b] + u.dot(kb.cross(self.rb[c]))
+        return 1.0 / ti.max(k, 1e-30)
+
+    @ti.func
+    def _find_previous(self, key):
+        """The slot of `key` among the last step's contacts (sorted), or -1 (binary search)."""
+        lo, hi = 0, self.prev_count[None]
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if self.prev_key[mid] < key:
+                lo = mid + 1
+            else:
+                hi = mid
+        found = -1
+        if lo < self.prev_count[None] and self.prev_key[lo] == key:
+            found = lo
+        return found
+
+    @ti.kernel
+    def prepare(self, model: ti.template(), state: ti.template(), h: float):
+        """Anchors, effective masses, targets; the last step's impulses applied again (warm start)."""
+        for i in range(model.live_rigid()):
+            r = pose(state, i)[1]
+            inv = model.rigid_inv_moments[i]
+            self.inv_inertia[i] = (
+                r @ ti.Matrix([[inv[0], 0, 0], [0, inv[1], 0], [0, 0, inv[2]]]) @ r.transpose()
+            )
+        ti.loop_config(serialize=True)
+        for c in range(self.count[None]):
+            a, b = self.a[c], self.b[c]
+            n = self.normal[c]
+            self.ra[c] = self.point[c] - state.rigid_x[a]
+            if b != NO_BODY:
+                self.rb[c] = self.point[c] - state.rigid_x[b]
+            t1, t2 = tangent_basis(n)
+            self.t1[c], self.t2[c] = t1, t2
+            self.k[c] = ti.Vector([self._mass_along(model, c, n), self._mass_along(model, c, t1),
+                                   self._mass_along(model, c, t2)])  # fmt: skip
+            sep = self.sep[c]
+            vn = self._relative_velocity(state, c).dot(n)
+            biased = -sep / h  # speculative: the gap may close within the step, no more
+            relaxed = biased
+            if sep <= 0.0:
+                biased = ti.min(self.beta / h * ti.max(-sep - self.slop, 0.0), self.max_push)
+                relaxed = 0.0
+            impulse = ti.Vector.zero(float, 3)
+            prev = self._find_previous(self.key[c])
+            self.target[c] = ti.Vector([biased, relaxed])
+            # Restitution (restitute(), after the relaxation): only where the contact was not pushing last
+            # step. A contact that was is resting, and the solver's leftover there (a tall stack's first
+            # steps) is no impact to restitute.
+            self.bounce[c] = 0.0
+            if vn < -self.bounce_speed and self.e[c] > 0.0:
+                if prev < 0 or self.prev_impulse[prev].dot(n) <= 0.0:
+                    self.bounce[c] = -self.e[c] * vn
+            if prev >= 0:
+                p = self.prev_impulse[prev]
+                ln = ti.max(p.dot(n), 0.0)
+                lt = ti.Vector([p.dot(t1), p.dot(t2)])
+                limit = self.mu[c] * ln
+                if lt.norm() > limit:
+                    lt *= limit / lt.norm()
+                impulse = ti.Vector([ln, lt[0], lt[1]])
+                self._apply(model, state, c, ln * n + lt[0] * t1 + lt[1] * t2)
+            self.impulse[c] = impulse
+
+    @ti.kernel
+    def solve(self, model: ti.template(), state: ti.template(), sweeps: ti.i32, relaxed: ti.template()):
+        """`sweeps` Gauss-Seidel sweeps: friction, then the normal impulse, contact by contact; the
+        normal targets are the biased ones, or with `relaxed` the unbiased ones (with restitution)."""
+        ti.loop_config(serialize=True)
+        for _ in range(sweeps):
+            for c in range(self.count[None]):
+                n, t1, t2 = self.normal[c], self.t1[c], self.t2[c]
+                lam = self.impulse[c]
+                v = self._relative_velocity(state, c)
+                # One effective mass for both tangents (the smaller): the update is then along -v_t, and
+                # the cone's clamp keeps friction opposite the slip (two different masses would turn it
+                # and make a sliding box drift sideways and yaw).
+                kt = ti.min(self.k[c][1], self.k[c][2])
+                lt = ti.Vector([lam[1] - v.dot(t1) * kt, lam[2] - v.dot(t2) * kt])
+                limit = self.mu[c] * lam[0]
+                if lt.norm() > limit:
+                    lt *= limit / ti.max(lt.norm(), 1e-30)
+                self._apply(model, state, c, (lt[0] - lam[1]) * t1 + (lt[1] - lam[2]) * t2)
+                v = self._relative_velocity(state, c)
+                ln = ti.max(lam[0] + (self.target[c][relaxed] - v.dot(n)) * self.k[c][0], 0.0)
+                self._apply(model, state, c, (ln - lam[0]) * n)
+                self.impulse[c] = ti.Vector([ln, lt[0], lt[1]])
+
+    @ti.kernel
+    def restitute(self, model: ti.template(), state: ti.template()):
+        """One sweep over the contacts that hit faster than bounce_speed and pushed in this step: their
+        normal speed set to e times the approach speed (Box2D v3's restitution pass)."""
+        ti.loop_config(serialize=True)
+        for c in range(self.count[None]):
+            lam = self.impulse[c]
+            if self.bounce[c] > 0.0 and lam[0] > 0.0:
+                vn = self._relative_velocity(state, c).dot(self.normal[c])
+                ln = ti.max(lam[0] + (self.bounce[c] - vn) * self.k[c][0], 0.0)
+                self._apply(model, state, c, (ln - lam[0]) * self.normal[c])
+                self.impulse[c][0] = ln
+
+    @ti.kernel
+    def store(self):
+        """Keep this step's impulses (world vectors) under their keys for the next step's warm start."""
+        ti.loop_config(serialize=True)
+        for c in range(self.count[None]):
+            lam = self.impulse[c]
+            self.prev_key[c] = self.key[c]
+            self.prev_impulse[c] = lam[0] * self.normal[c] + lam[1] * self.t1[c] + lam[2] * self.t2[c]
+        self.prev_count[None] = self.count[None]
+
+
+def default_capacity(model) -> int:
+    """Contacts the buffers hold by default: every point touching a few others, and every collider."""
+    points = max(model.rigid_point_count, 1)
+    return int(min(max(256, points * (4 + len(model.colliders))), 1 << 24))
+
+
+__all__ = ["CASCADE_LEVELS", "RigidContacts", "default_capacity"]

@@ -1,0 +1,143 @@
+"""Rigid contact detection: the course's cascade of bounding volumes, then contact points.
+
+Every pair of bodies goes through cheaper tests first and the exact one last (the collision chapter's
+"spheres within AABB within OBB"): bounding spheres about the centres of mass, world AABBs (each body's
+OBB projected on the world axes), the OBB-OBB separating-axis test on the 15 axes of Gottschalk, Lin &
+Manocha ("OBBTree", SIGGRAPH 1996, sec. 4), and only then the contact points: each body's points
+(vertices; a round shape's core points with its radius) against the other's signed distance
+(geometry.py), both ways. A body's points are also tested against every collider's signed distance
+(`Collider.contact`). How many pairs each level passes is counted (`RigidContacts.cascade`): the cost
+model T = N_v C_v + N_p C_p of the course, measured.
+
+Contacts within the margin are kept (speculative contacts: the solver lets such a gap close, no more),
+keyed by (body a, body b or collider, side, point) so that the next step can find its impulse again (warm
+starting); the keys are made in increasing order."""
+
+import taichi as ti
+
+from .quaternion import quat_matrix
+
+NO_BODY = -1  # the b side of a contact with a collider
+
+
+@ti.func
+def body_sdf(model: ti.template(), b, xb, rb, p):
+    """(signed distance [m], outward unit normal (world)) of body b (com xb, rotation rb) at world p."""
+    local = rb.transpose() @ (p - xb)
+    dist = ti.cast(0.0, float)
+    normal = ti.Vector([0.0, 1.0, 0.0], float)
+    if model.rigid_round[b]:
+        s0, s1 = model.rigid_seg0[b], model.rigid_seg1[b]
+        axis = s1 - s0
+        u = ti.cast(0.0, float)
+        if axis.norm_sqr() > 0.0:
+            u = ti.min(ti.max((local - s0).dot(axis) / axis.norm_sqr(), 0.0), 1.0)
+        off = local - (s0 + u * axis)
+        length = off.norm()
+        if length > 1e-12:
+            normal = off / length
+        dist = length - model.rigid_radius[b]
+    else:
+        dist = -1e30
+        for k in range(model.rigid_plane_start[b], model.rigid_plane_start[b + 1]):
+            plane = model.rigid_planes[k]
+            n = ti.Vector([plane[0], plane[1], plane[2]])
+            d = n.dot(local) - plane[3]
+            if d > dist:
+                dist = d
+                normal = n
+    return dist, rb @ normal
+
+
+@ti.func
+def obb_overlap(ha, hb, ra, rb, d, margin):
+    """Whether two OBBs (half extents ha, hb along the columns of ra, rb; centres d apart) come within
+    `margin`: no separating axis among the 15 of Gottschalk et al. (a margin on an unnormalised cross
+    axis keeps the test conservative)."""
+    r = ra.transpose() @ rb
+    t = ra.transpose() @ d
+    absr = ti.abs(r) + 1e-9  # parallel edges give a null cross axis: keep it from separating by round-off
+    overlap = True
+    for i in ti.static(range(3)):
+        if ti.abs(t[i]) > ha[i] + hb.dot(ti.Vector([absr[i, 0], absr[i, 1], absr[i, 2]])) + margin:
+            overlap = False
+    for j in ti.static(range(3)):
+        proj = t[0] * r[0, j] + t[1] * r[1, j] + t[2] * r[2, j]
+        if ti.abs(proj) > ha.dot(ti.Vector([absr[0, j], absr[1, j], absr[2, j]])) + hb[j] + margin:
+            overlap = False
+    for i in ti.static(range(3)):
+        i1, i2 = ti.static((i + 1) % 3, (i + 2) % 3)
+        for j in ti.static(range(3)):
+            j1, j2 = ti.static((j + 1) % 3, (j + 2) % 3)
+            ext_a = ha[i1] * absr[i2, j] + ha[i2] * absr[i1, j]
+            ext_b = hb[j1] * absr[i, j2] + hb[j2] * absr[i, j1]
+            if ti.abs(t[i2] * r[i1, j] - t[i1] * r[i2, j]) > ext_a + ext_b + margin:
+                overlap = False
+    return overlap
+
+
+@ti.func
+def pose(state: ti.template(), i):
+    """(com [m], rotation matrix) of body i now."""
+    return state.rigid_x[i], quat_matrix(state.rigid_q[i])
+
+
+@ti.func
+def support(model: ti.template(), i, x, r, u):
+    """max over body i's points (com x, rotation r) of u . p: its extent along u [m]."""
+    best = -1e30
+    for k in range(model.rigid_point_start[i], model.rigid_point_start[i + 1]):
+        best = ti.max(best, u.dot(x + r @ model.rigid_points[k]))
+    return best
+
+
+@ti.func
+def separation(model: ti.template(), a, xa, ra, b, xb, rb, u):
+    """How far body a lies beyond body b along u (negative: their overlap along u)."""
+    return -support(model, a, xa, ra, -u) - support(model, b, xb, rb, u)
+
+
+# A face of a, or an edge-edge axis, replaces the best axis so far only when clearly better: resting
+# contacts then keep one normal from step to step instead of flickering between near-ties (Jolt and Box2D
+# bias their separating-axis choices the same way).
+FACE_BIAS = 1e-5  # [m]
+EDGE_BIAS = 1e-3  # [m]
+
+
+@ti.func
+def pair_normal(model: ti.template(), a, xa, ra, b, xb, rb):
+    """The contact normal (from b towards a) of two polytopes: the axis of least overlap among b's face
+    normals, a's, and the cross products of their OBB axes (a separating-axis search: Gottschalk et al.'s
+    axes for boxes, face normals for hulls). One loop over the candidate axes, so that the search is
+    compiled once."""
+    best = -1e30
+    normal = ti.Vector([0.0, 1.0, 0.0], float)
+    b0, a0 = model.rigid_plane_start[b], model.rigid_plane_start[a]
+    nb, na = model.rigid_plane_start[b + 1] - b0, model.rigid_plane_start[a + 1] - a0
+    for m in range(nb + na + 9):
+        u = ti.Vector.zero(float, 3)
+        bias = ti.cast(0.0, float)
+        if m < nb + na:
+            plane = model.rigid_planes[b0 + m] if m < nb else model.rigid_planes[a0 + m - nb]
+            u = ti.Vector([plane[0], plane[1], plane[2]])
+            u = rb @ u if m < nb else -(ra @ u)
+            bias = 0.0 if m < nb else FACE_BIAS
+        else:
+            e = m - nb - na
+            u = (ra @ _unit(e // 3)).cross(rb @ _unit(e % 3))
+            bias = EDGE_BIAS
+            length = u.norm()
+            u = u / length if length > 1e-6 else ti.Vector.zero(float, 3)
+            if u.dot(xa - xb) < 0.0:
+                u = -u
+        if u.norm_sqr() > 0.0:
+            s = separation(model, a, xa, ra, b, xb, rb, u)
+            if s > best + bias:
+                best, normal = s, u
+    return normal
+
+
+@ti.func
+def _unit(i):
+    """The unit vector along axis i (0, 1, 2) chosen at run time."""
+    return ti.Vector([1.0 if i == 0 else 0.0, 1.0 if i == 1 else 0.0, 1.0 if i == 2 else 0.0])
