@@ -51,9 +51,10 @@ class Mesh:
     vertices (V,3) [m]; triangles (F,3) int, counter-clockwise seen from the side the normals face;
     normals (V,3) unit vertex normals or None (computed by whoever needs them); color (3,) in [0,1];
     role: "cloth" (two-sided, fixed topology, vertex i is a model particle), "surface" (a blob
-    isosurface: topology changes every frame) or "collider" (drawn for context); animated: False when
-    the mesh is the same at every frame (a static collider: written once); export: written to PLY each
-    frame.
+    isosurface: topology changes every frame), "collider" (drawn for context) or "body" (rigid bodies
+    at their poses); animated: False when the mesh is the same at every frame (a static collider:
+    written once); export: written to PLY each frame; parts: the rigid bodies a "body" mesh is made of
+    (RigidParts), or None.
     """
 
     name: str
@@ -64,6 +65,7 @@ class Mesh:
     role: str = "cloth"
     animated: bool = True
     export: bool = True
+    parts: "RigidParts | None" = None
 
     def __post_init__(self):
         _check_role(self.role, MESH_ROLES)
@@ -72,6 +74,17 @@ class Mesh:
     def fixed_topology(self) -> bool:
         """True when the triangles are the same at every frame (cloth, colliders), False for surfaces."""
         return self.role != "surface"
+
+
+@dataclass(frozen=True)
+class RigidParts:
+    """The rigid bodies a "body" Mesh is made of, for writers that keep bodies apart (USD: one prim per
+    body, its mesh once and its pose per frame): meshes, one (vertices (V,3) [m], faces (F,3)) per body in
+    its own frame; positions (B,3) [m] and orientations (B,4) (x, y, z, w) place those frames now."""
+
+    meshes: list
+    positions: np.ndarray
+    orientations: np.ndarray
 
 
 @dataclass(frozen=True)

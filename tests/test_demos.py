@@ -26,6 +26,13 @@ def test_demo_runs_and_exports(name, tmp_path, capsys):
     assert manifest["timings"]["steps"] == 4 * manifest["settings"]["substeps"]
     assert (tmp_path / f"{name}_last.png").stat().st_size > 1000
     cloths = manifest["settings"]["model"]["cloths"]
+    bodies = manifest["settings"]["model"].get("rigid_bodies", [])
+    if bodies:  # rigid bodies export as one mesh of every body at its pose
+        mesh = read_triangle_mesh(tmp_path / f"{name}_bodies_0003.ply")
+        scene = make_scene(name, seed=3)
+        assert len(mesh["vertices"]) == sum(len(s.triangles()[0]) for s in scene.model.rigid_shapes)
+        assert np.all(np.isfinite(mesh["vertices"]))
+        return
     if cloths:  # a cloth scene exports its cloth as a mesh with unit vertex normals
         mesh = read_triangle_mesh(tmp_path / f"{name}_0003.ply")
         assert len(mesh["vertices"]) == sum(c["vertices"] for c in cloths)

@@ -44,6 +44,7 @@ from ..content import Lines, Mesh, Points
 from ..errors import OutputError, ParameterError
 from .atomic import atomic_path, output_error
 from .export import area_weighted_normals
+from .usd_bodies import author_bodies
 
 USD_EXTENSIONS = (".usd", ".usdc", ".usda")
 LAYER_KEY = "taichi_anim"  # customLayerData entry the completeness check reads (atomic.usd_problem)
@@ -155,6 +156,8 @@ class UsdStageWriter:
                 present.add(path)
                 if isinstance(item, Points):
                     self._points(path, item, code)
+                elif isinstance(item, Mesh) and item.parts is not None:
+                    author_bodies(self, path, item, code)  # rigid bodies: a prim per body, posed
                 elif isinstance(item, Mesh):
                     self._mesh(path, item, code)
                 else:

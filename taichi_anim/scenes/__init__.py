@@ -1,7 +1,7 @@
 """Demo scenes, by name: what `taichi-anim demo NAME` runs."""
 
 from .. import validate
-from . import blobs, cloth, drape, flag, fountain, layers, moving_mesh, spheres, tablecloth
+from . import blobs, cloth, dominoes, drape, flag, fountain, layers, moving_mesh, pile, spheres, tablecloth
 from .base import Scene
 
 SCENES = {
@@ -14,6 +14,8 @@ SCENES = {
     "layers": layers,
     "tablecloth": tablecloth,
     "moving_mesh": moving_mesh,
+    "dominoes": dominoes,
+    "pile": pile,
 }
 DEFAULT_SCENE = "fountain"
 

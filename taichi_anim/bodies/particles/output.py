@@ -26,6 +26,8 @@ def cloth_mesh(model, snap):
 def particle_items(model, state) -> list:
     """The particle kind's content items now: the cloth mesh (role "cloth"), the other particles as
     points, and the trails (role "trails")."""
+    if not model.particle_count:  # a scene of rigid bodies only
+        return []
     snap = state.snapshot()
     mesh = cloth_mesh(model, snap)
     items = []

@@ -3,7 +3,7 @@ item (content.py) that PLY, USD and the renderer read."""
 
 import numpy as np
 
-from ...content import Mesh
+from ...content import Mesh, RigidParts
 from ...io.export import area_weighted_normals
 from .quaternion import quat_to_matrix
 
@@ -30,4 +30,5 @@ def rigid_items(model, state) -> list:
         faces.append(f + start)
         start += len(v)
     v, f = np.concatenate(vertices), np.concatenate(faces)
-    return [Mesh("bodies", v, f, area_weighted_normals(v, f), BODY_COLOR, role="body")]
+    parts = RigidParts(shape_meshes(model), snap.position, snap.orientation)
+    return [Mesh("bodies", v, f, area_weighted_normals(v, f), BODY_COLOR, role="body", parts=parts)]
