@@ -187,3 +187,49 @@ def test_the_obb_test_matches_an_exact_reference(pairs):
     mismatched = np.flatnonzero(out.astype(bool) != reference)
     assert len(mismatched) == 0, mismatched[:10]
     assert 0.2 < reference.mean() < 0.8  # both outcomes well represented
+
+
+def test_newtons_cradle_passes_the_momentum_to_the_last_ball():
+    # Five equal balls in a row, the first arriving at 1 m/s with e = 1: it stops, the last leaves at
+    # 1 m/s and the three between stay (momentum and energy through the row, Guendelman et al.'s
+    # collision phase); the balls touch to 0.1 mm.
+    r = 0.1
+    balls = [(ta.shapes.Sphere(r), dict(position=(-0.5, 0, 0), velocity=(1.0, 0, 0), restitution=1.0))]
+    balls += [
+        (ta.shapes.Sphere(r), dict(position=((2 * r + 1e-4) * k, 0, 0), restitution=1.0)) for k in range(4)
+    ]
+    m, s, integ = world(balls, gravity=False, contacts=dict(bounce_speed=0.01))
+    snap = advance(m, s, integ, 1.0)
+    np.testing.assert_allclose(snap.velocity[:, 0], [0.0, 0.0, 0.0, 0.0, 1.0], atol=1e-9)
+
+
+def test_a_heavy_on_light_stack_stands():
+    # Alternating 1 kg and 100 kg boxes (1:100): ten seconds later still stacked, within 5 mm.
+    cube = ta.shapes.Box((0.1, 0.1, 0.1))
+    rho = [10.0, 1000.0, 10.0, 1000.0]
+    boxes = [(cube, dict(position=(0, 0.1 + 0.2 * k, 0), density=d, friction=0.6)) for k, d in enumerate(rho)]
+    m, s, integ = world(boxes, plane=((0, 1, 0), 0.6, 0.0))
+    for _ in range(600):
+        integ.step(m, s, 1 / 60, substeps=4)
+    snap = s.rigid_snapshot()
+    expected = 0.1 + 0.2 * np.arange(4)
+    assert np.abs(snap.position[:, 1] - expected).max() < 0.01
+    assert np.hypot(snap.position[:, 0], snap.position[:, 2]).max() < 0.005
+
+
+@pytest.mark.parametrize(
+    "side", [pytest.param(10, id="10"), pytest.param(20, marks=pytest.mark.slow, id="20")]
+)
+def test_a_pyramid_of_boxes_stands_for_ten_seconds(side):
+    # Rows of side, side - 1, ... 1 cubes of 0.2 m, 5 mm apart: after 10 s no box has moved 1 cm.
+    h, start = 0.1, []
+    for row in range(side):
+        for i in range(side - row):
+            start.append(((i - (side - row - 1) / 2) * 2.05 * h, h + 2 * h * row, 0.0))
+    cube = ta.shapes.Box((h, h, h))
+    m, s, integ = world([(cube, dict(position=p, friction=0.6)) for p in start], plane=((0, 1, 0), 0.6, 0.0))
+    for _ in range(600):
+        integ.step(m, s, 1 / 60, substeps=4)
+    snap = s.rigid_snapshot()
+    assert np.linalg.norm(snap.position - np.array(start), axis=1).max() < 0.01
+    assert np.abs(snap.velocity).max() < 0.02

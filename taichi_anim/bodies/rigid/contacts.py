@@ -4,8 +4,9 @@ using Sequential Impulses", GDC 2006: accumulated impulses clamped, normal >= 0 
 cone mu lambda_n), with the soft step of Box2D v3 (Catto, "Solver2D", 2024): the biased solve pushes
 penetrations out at beta / h of their depth past a slop (at most `max_push` m/s), the positions move,
 then relaxation iterations without the bias take that push back out of the velocities, so stacks do not
-gain energy from their own correction. Restitution is a last pass (restitute) on contacts that approached
-faster than `bounce_speed` and were not already pushing in the step before.
+gain energy from their own correction. Restitution is a collision phase before the solve (collide:
+Guendelman et al. 2003) on contacts that approach faster than `bounce_speed` and were not already pushing
+in the step before.
 
 Everything runs serially on the CPU (Gauss-Seidel over the contacts, in the order they were found), so
 results are deterministic at any thread count."""
@@ -18,6 +19,9 @@ from ...runtime import data_oriented
 from .narrow_phase import NO_BODY, body_sdf, obb_overlap, pair_normal, pose, support
 
 CASCADE_LEVELS = ("pairs", "spheres", "aabb", "obb", "touching")
+# Sweeps of the collision phase: an impact passes one contact per sweep against the contacts' order
+# (along it, all in one sweep).
+COLLISION_SWEEPS = 4
 
 
 @ti.func
@@ -42,6 +46,7 @@ class RigidContacts:
     def __init__(self, model, *, iterations, relax_iterations, beta, slop, max_push, bounce_speed, capacity):
         self.iterations = iterations
         self.relax_iterations = relax_iterations
+        self.collision_sweeps = COLLISION_SWEEPS
         self.beta, self.slop, self.max_push, self.bounce_speed = beta, slop, max_push, bounce_speed
         self.margin = model.RIGID_MARGIN
         self.capacity = capacity
@@ -64,7 +69,7 @@ class RigidContacts:
         self.t2 = make(self, "rc_t2", float, cap, **vec)
         self.k = make(self, "rc_k", float, cap, **vec)  # effective masses along n, t1, t2
         self.target = make(self, "rc_target", float, cap, dims=(2,))  # biased, relaxed normal speeds
-        self.bounce = make(self, "rc_bounce", float, cap)  # the normal speed after a bounce, or 0
+        self.bounce = make(self, "rc_bounce", float, cap)  # e where the contact may bounce, else 0
         self.impulse = make(self, "rc_impulse", float, cap, **vec)  # accumulated (n, t1, t2) [N s]
         self.prev_key = make(self, "rc_prev_key", ti.i64, cap)
         self.prev_impulse = make(self, "rc_prev_impulse", float, cap, **vec)  # world vector [N s]
@@ -262,7 +267,6 @@ class RigidContacts:
             self.k[c] = ti.Vector([self._mass_along(model, c, n), self._mass_along(model, c, t1),
                                    self._mass_along(model, c, t2)])  # fmt: skip
             sep = self.sep[c]
-            vn = self._relative_velocity(state, c).dot(n)
             biased = -sep / h  # speculative: the gap may close within the step, no more
             relaxed = biased
             if sep <= 0.0:
@@ -271,13 +275,12 @@ class RigidContacts:
             impulse = ti.Vector.zero(float, 3)
             prev = self._find_previous(self.key[c])
             self.target[c] = ti.Vector([biased, relaxed])
-            # Restitution (restitute(), after the relaxation): only where the contact was not pushing last
-            # step. A contact that was is resting, and the solver's leftover there (a tall stack's first
-            # steps) is no impact to restitute.
+            # Restitution (collide(), before the solve) only where the contact was not pushing last step:
+            # a contact that was is resting, and the solver's leftover there (a tall stack's first steps)
+            # is no impact to restitute.
             self.bounce[c] = 0.0
-            if vn < -self.bounce_speed and self.e[c] > 0.0:
-                if prev < 0 or self.prev_impulse[prev].dot(n) <= 0.0:
-                    self.bounce[c] = -self.e[c] * vn
+            if self.e[c] > 0.0 and (prev < 0 or self.prev_impulse[prev].dot(n) <= 0.0):
+                self.bounce[c] = self.e[c]
             if prev >= 0:
                 p = self.prev_impulse[prev]
                 ln = ti.max(p.dot(n), 0.0)
@@ -314,17 +317,20 @@ class RigidContacts:
                 self.impulse[c] = ti.Vector([ln, lt[0], lt[1]])
 
     @ti.kernel
-    def restitute(self, model: ti.template(), state: ti.template()):
-        """One sweep over the contacts that hit faster than bounce_speed and pushed in this step: their
-        normal speed set to e times the approach speed (Box2D v3's restitution pass)."""
+    def collide(self, model: ti.template(), state: ti.template(), h: float, sweeps: ti.i32):
+        """The collision phase of Guendelman, Bridson & Fedkiw ("Nonconvex rigid bodies with stacking",
+        SIGGRAPH 2003, sec. 7), before the contact solve: sweeps over the contacts that may bounce; one
+        approaching faster than bounce_speed, and closing its gap within the step, leaves at e times its
+        approach speed *now*, so an impact passes along a row in one sweep (Newton's cradle). These
+        impulses are not accumulated: the contact solve that follows cannot take a bounce back."""
         ti.loop_config(serialize=True)
-        for c in range(self.count[None]):
-            lam = self.impulse[c]
-            if self.bounce[c] > 0.0 and lam[0] > 0.0:
-                vn = self._relative_velocity(state, c).dot(self.normal[c])
-                ln = ti.max(lam[0] + (self.bounce[c] - vn) * self.k[c][0], 0.0)
-                self._apply(model, state, c, (ln - lam[0]) * self.normal[c])
-                self.impulse[c][0] = ln
+        for _ in range(sweeps):
+            for c in range(self.count[None]):
+                if self.bounce[c] > 0.0:
+                    n = self.normal[c]
+                    vn = self._relative_velocity(state, c).dot(n)
+                    if vn < -self.bounce_speed and self.sep[c] + vn * h < 0.0:
+                        self._apply(model, state, c, (-self.bounce[c] * vn - vn) * self.k[c][0] * n)
 
     @ti.kernel
     def store(self):

@@ -142,11 +142,11 @@ class RigidDynamics:
         if c is not None:
             c.detect(model, state, state.time)
             c.prepare(model, state, h)
+            c.collide(model, state, h, c.collision_sweeps)
             c.solve(model, state, c.iterations, 0)
         self._drift(model, state, h)
         if c is not None:
             c.solve(model, state, c.relax_iterations, 1)
-            c.restitute(model, state)
             c.store()
 
     def check(self, state) -> None:
