@@ -34,6 +34,8 @@ FRAMES = {
     "layers": 110,
     "tablecloth": 60,
     "moving_mesh": 130,
+    "dominoes": 100,
+    "pile": 120,
 }
 
 

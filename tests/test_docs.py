@@ -28,6 +28,7 @@ STANDALONE_BLOCKS = {ROOT / "README.md"}
 # defined in the module itself.
 API_MODULES = [
     "taichi_anim",
+    "taichi_anim.shapes",
     "taichi_anim.io",
     "taichi_anim.spatial",
     "taichi_anim.collision.neighbors",

@@ -42,7 +42,8 @@ LAYERS = [
     ("io.atomic", "io.read_guard", "io.obj_scan", "io.export", "io.lock", "io.manifest"),
     # meshes and cloth materials from arrays or files; what a frame shows (plain data: points, meshes,
     # lines), which body kinds make and io/, render/ and the viewer read
-    ("geometry", "cloth", "content"),
+    # (shapes: rigid bodies' shapes and their mass properties)
+    ("geometry", "cloth", "content", "shapes"),
     # geometry queries, prefix sums, matrix-free linear solvers
     ("spatial", "linalg"),
     # the parts a scene is made of: force terms, colliders and contacts, particle sources, body kinds

@@ -118,7 +118,12 @@ class RigidContacts:
             self.e[slot] = e
 
     @ti.func
-    def _points_in(self, model: ti.template(), state: ti.template(), a, b, side, pair_n, face):
+    def _reach(self, model: ti.template(), state: ti.template(), i, h):
+        """How far body i's surface can move in a step of h [s]: |v| h + |w| h times its bound."""
+        return h * (state.rigid_v[i].norm() + state.rigid_w[i].norm() * model.rigid_bound[i])
+
+    @ti.func
+    def _points_in(self, model: ti.template(), state: ti.template(), a, b, side, pair_n, face, margin):
         """Body `a`'s points against body `b`'s signed distance (side 0), or b's against a's (side 1);
         contacts are stored with the lower index first and the normal from b towards a. Two polytopes
         share one normal, the pair's separating-axis normal `pair_n` (pair_normal), with each point's
@@ -136,18 +141,20 @@ class RigidContacts:
             radius = model.rigid_point_radius[k]
             d, n = body_sdf(model, dst, xd, rd, p)
             sep = d - radius
-            if sep < self.margin:
+            if sep < margin:
                 normal = n if side == 0 else -n
                 point = p - radius * n
                 if pair_n.norm_sqr() > 0.0:
                     normal = pair_n
                     sep = pair_n.dot(p) - face if side == 0 else face - pair_n.dot(p)
-                if sep < self.margin:
+                if sep < margin:
                     self._add(model, a, b, side, k, point, normal, sep, ti.Vector.zero(float, 3), mu, e, b)
 
     @ti.kernel
-    def detect(self, model: ti.template(), state: ti.template(), t: float):
-        """Every contact of the bodies' current poses (time t [s] for moving colliders)."""
+    def detect(self, model: ti.template(), state: ti.template(), t: float, h: float):
+        """Every contact of the bodies' current poses (time t [s] for moving colliders) that can close
+        within the step h [s]: the margin grows with the bodies' speeds, so a fast body meets what lies
+        in its path (speculative contacts, Catto 2013) instead of passing through it."""
         self.found[None] = 0
         for level in ti.static(range(len(CASCADE_LEVELS))):
             self.cascade_counts[level] = 0
@@ -160,14 +167,15 @@ class RigidContacts:
                 self.cascade_counts[0] += 1
                 xb, rb = pose(state, b)
                 d = xb - xa
-                if d.norm() > model.rigid_bound[a] + model.rigid_bound[b] + self.margin:
+                margin = self.margin + self._reach(model, state, a, h) + self._reach(model, state, b, h)
+                if d.norm() > model.rigid_bound[a] + model.rigid_bound[b] + margin:
                     continue
                 self.cascade_counts[1] += 1
-                reach = ti.abs(ra) @ model.rigid_half[a] + ti.abs(rb) @ model.rigid_half[b] + self.margin
+                reach = ti.abs(ra) @ model.rigid_half[a] + ti.abs(rb) @ model.rigid_half[b] + margin
                 if (ti.abs(d) > reach).any():
                     continue
                 self.cascade_counts[2] += 1
-                if not obb_overlap(model.rigid_half[a], model.rigid_half[b], ra, rb, d, self.margin):
+                if not obb_overlap(model.rigid_half[a], model.rigid_half[b], ra, rb, d, margin):
                     continue
                 self.cascade_counts[3] += 1
                 before = self.found[None]
@@ -179,15 +187,15 @@ class RigidContacts:
                         [support(model, b, xb, rb, pair_n), -support(model, a, xa, ra, -pair_n)]
                     )
                 for side in range(2):
-                    self._points_in(model, state, a, b, side, pair_n, faces[side])
+                    self._points_in(model, state, a, b, side, pair_n, faces[side], margin)
                 if self.found[None] > before:
                     self.cascade_counts[4] += 1
             if model.rigid_inv_mass[a] > 0.0:
-                self._collider_contacts(model, a, xa, ra, t)
+                self._collider_contacts(model, a, xa, ra, t, self.margin + self._reach(model, state, a, h))
         self.count[None] = ti.min(self.found[None], ti.i32(self.sizes[0]))
 
     @ti.func
-    def _collider_contacts(self, model: ti.template(), a, xa, ra, t):
+    def _collider_contacts(self, model: ti.template(), a, xa, ra, t, margin):
         for c, collider in ti.static(tuple(enumerate(self.colliders))):
             mu = ti.sqrt(model.rigid_friction[a] * collider.friction)
             e = ti.max(model.rigid_restitution[a], collider.restitution)
@@ -195,8 +203,17 @@ class RigidContacts:
                 p = xa + ra @ model.rigid_points[k]
                 radius = model.rigid_point_radius[k]
                 d, n, vs = collider.contact(p, t)
+                # A mesh collider answers only within its reach (farther points read as `reach`): its
+                # contacts are found from there, however fast the body.
+                if d >= ti.static(getattr(collider, "reach", 1e30) - 1e-9):
+                    continue
+                if ti.static(collider.shell):
+                    # An open surface has no inside: the body is on its centre's side, and a point of it
+                    # past the sheet is penetrating (not outside on the far side, to be pushed through).
+                    if n.dot(xa - p) < 0.0:
+                        n, d = -n, -d
                 sep = d - radius
-                if sep < self.margin:
+                if sep < margin:
                     self._add(
                         model, a, NO_BODY, 0, k, p - radius * n, n, sep, vs, mu, e, model.rigid_count + c
                     )

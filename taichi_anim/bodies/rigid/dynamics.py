@@ -140,7 +140,7 @@ class RigidDynamics:
         self._kick(model, state, h)
         c = self.contacts
         if c is not None:
-            c.detect(model, state, state.time)
+            c.detect(model, state, state.time, h)
             c.prepare(model, state, h)
             c.collide(model, state, h, c.collision_sweeps)
             c.solve(model, state, c.iterations, 0)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...shapes import Capsule, Sphere
+from ...shapes import Capsule, ConvexHull, Sphere
 
 
 def to_principal(points, com, axes) -> np.ndarray:
@@ -20,8 +20,6 @@ def to_principal(points, com, axes) -> np.ndarray:
 def hull_planes(vertices: np.ndarray) -> np.ndarray:
     """(K,4) unit outward normals and offsets (n . x <= d inside) of the convex hull of `vertices`,
     coplanar faces merged."""
-    from ...shapes import ConvexHull
-
     hull = ConvexHull(vertices)
     v, f = hull.vertices, hull.faces
     n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
