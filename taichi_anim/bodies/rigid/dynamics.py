@@ -104,7 +104,9 @@ class RigidDynamics:
         self.scheme = scheme
         self.method_name = method.name
         self.gravity = body_acceleration(model)
+        # The last body found non-finite (-1: none), written by the stepping kernels, read by check().
         self._bad = ti.field(ti.i32, shape=())
+        self._bad[None] = -1
         self.contact_options = dict(contacts or {})
         self.contacts = None
         touching = model.rigid_count > 1 or model.collider_count > 0
@@ -141,35 +143,32 @@ class RigidDynamics:
         c = self.contacts
         if c is not None:
             c.detect(model, state, state.time, h)
-            c.prepare(model, state, h)
-            c.collide(model, state, h, c.collision_sweeps)
+            c.prepare(model, state, h, c.collision_sweeps)  # with the collision phase
             c.solve(model, state, c.iterations, 0)
         self._drift(model, state, h)
         if c is not None:
-            c.solve(model, state, c.relax_iterations, 1)
-            c.store()
+            c.solve(model, state, c.relax_iterations, 1)  # and keeps the impulses for the next step
 
     def check(self, state) -> None:
         """DivergenceError if a body's pose or velocity is no longer finite, or the contacts overflowed."""
         if self.contacts is not None:
             self.contacts.check()
-        bad = self._find_bad(state.model, state)
+        bad = int(self._bad[None])
         if bad >= 0:
+            self._bad[None] = -1
             raise DivergenceError(
                 f"rigid body {bad}: non-finite position, orientation or velocity at t = {state.time:.6g} s",
                 step=state.step_count,
                 quantity="rigid_state",
             )
 
-    @ti.kernel
-    def _find_bad(self, model: ti.template(), state: ti.template()) -> ti.i32:
-        self._bad[None] = -1
-        for i in range(model.live_rigid()):
-            s = state.rigid_x[i].sum() + state.rigid_q[i].sum()
-            s += state.rigid_v[i].sum() + state.rigid_w[i].sum()
-            if not (ti.abs(s) < ti.math.inf):  # NaN fails every comparison
-                ti.atomic_max(self._bad[None], i)
-        return self._bad[None]
+    @ti.func
+    def _watch(self, state: ti.template(), i):
+        """Record body i if its pose or velocity is no longer finite (check() reads it)."""
+        s = state.rigid_x[i].sum() + state.rigid_q[i].sum()
+        s += state.rigid_v[i].sum() + state.rigid_w[i].sum()
+        if not (ti.abs(s) < ti.math.inf):  # NaN fails every comparison
+            ti.atomic_max(self._bad[None], i)
 
     @ti.func
     def _linear_accel(self, model: ti.template(), state: ti.template(), i):
@@ -178,6 +177,7 @@ class RigidDynamics:
     @ti.kernel
     def _kick(self, model: ti.template(), state: ti.template(), h: float):
         """Velocities by the forces and torques of the step: v += h a, w += h I_w^-1 tau (L += h tau)."""
+        ti.loop_config(serialize=model.rigid_serial)
         for i in range(model.live_rigid()):
             if model.rigid_inv_mass[i] > 0.0:
                 q = state.rigid_q[i]
@@ -190,6 +190,7 @@ class RigidDynamics:
     @ti.kernel
     def _drift(self, model: ti.template(), state: ti.template(), h: float):
         """Poses by the (corrected) velocities: x += h v, and the torque-free turn of L = I_w w."""
+        ti.loop_config(serialize=model.rigid_serial)
         for i in range(model.live_rigid()):
             x, q, v, w = state.rigid_x[i], state.rigid_q[i], state.rigid_v[i], state.rigid_w[i]
             inv = model.rigid_inv_moments[i]
@@ -201,6 +202,7 @@ class RigidDynamics:
                 q1 = free_rotation(q, mom, inv, h)
                 state.rigid_q[i] = q1
                 state.rigid_w[i] = angular_velocity(q1, mom, inv)
+            self._watch(state, i)
 
     @ti.func
     def _rates(self, model: ti.template(), state: ti.template(), i, q, v, mom):
@@ -213,6 +215,7 @@ class RigidDynamics:
     @ti.kernel
     def _runge_kutta(self, model: ti.template(), state: ti.template(), h: float):
         a, b, n = ti.static(self.scheme.a, self.scheme.b, len(self.scheme.b))
+        ti.loop_config(serialize=model.rigid_serial)
         for i in range(model.live_rigid()):
             x0, q0, v0, w0 = state.rigid_x[i], state.rigid_q[i], state.rigid_v[i], state.rigid_w[i]
             inv = model.rigid_inv_moments[i]
@@ -250,3 +253,4 @@ class RigidDynamics:
                 state.rigid_q[i] = q1
                 state.rigid_v[i] = v1
                 state.rigid_w[i] = angular_velocity(q1, m1, inv)
+            self._watch(state, i)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...shapes import Capsule, ConvexHull, Sphere
+from ...shapes import Box, Capsule, ConvexHull, Sphere
 
 
 def to_principal(points, com, axes) -> np.ndarray:
@@ -43,6 +43,7 @@ def contact_geometry(shape, com: np.ndarray, axes: np.ndarray) -> dict:
             points=points,
             point_radius=np.full(len(points), r),
             round=True,
+            box=False,
             segment=ends,
             radius=r,
             planes=np.zeros((0, 4)),
@@ -55,6 +56,7 @@ def contact_geometry(shape, com: np.ndarray, axes: np.ndarray) -> dict:
         points=local,
         point_radius=np.zeros(len(local)),
         round=False,
+        box=isinstance(shape, Box),  # its OBB along the principal axes is the box itself
         segment=np.zeros((2, 3)),
         radius=0.0,
         planes=hull_planes(local),

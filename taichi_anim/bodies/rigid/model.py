@@ -6,7 +6,7 @@ import taichi as ti
 
 from ... import capacity
 from ...errors import ParameterError
-from ...runtime import data_oriented, np_float
+from ...runtime import data_oriented, np_float, serial_loops
 
 
 @data_oriented
@@ -35,6 +35,8 @@ class RigidModel:
         # The options the Stepper builds the bodies' solver from (solvers.SOLVERS): none to give.
         self.rigid_dynamics = dict(contacts=contacts) if b else None
         self.rigid_capacity = capacity.bucket(b) if self.size_buckets else b
+        # Few bodies: their loops run serially (a parallel loop's start costs more than their work here).
+        self.rigid_serial = serial_loops(self.rigid_capacity)
         self.rigid_live = self.rigid_inv_mass = self.rigid_inv_moments = None
         self.rigid_reach = 0.0
         if not b:
@@ -70,9 +72,9 @@ class RigidModel:
         """The contact geometry of every body (geometry.py) as fields: its points (rigid_points from
         rigid_point_start[i] to rigid_point_start[i + 1], with rigid_point_radius), its signed distance
         (rigid_round: a core segment rigid_seg0-rigid_seg1 of radius rigid_radius; else the planes
-        rigid_planes from rigid_plane_start[i]), rigid_bound (sphere radius about the com) and
-        rigid_half (OBB half extents along the principal axes), all in the principal frame; and its
-        rigid_friction and rigid_restitution."""
+        rigid_planes from rigid_plane_start[i]; rigid_box: a box, whose OBB is exact), rigid_bound
+        (sphere radius about the com) and rigid_half (OBB half extents along the principal axes), all in
+        the principal frame; and its rigid_friction and rigid_restitution."""
         geo = [x["geometry"] for x in bodies]
         points = np.concatenate([g["points"] for g in geo])
         planes = np.concatenate([g["planes"] for g in geo])
@@ -98,6 +100,7 @@ class RigidModel:
         put("rigid_plane_start", starts("planes"), cap + 1, ti.i32)
         put("rigid_planes", planes, rows(len(planes)), dims=(4,))
         put("rigid_round", [int(g["round"]) for g in geo], cap, ti.i32)
+        put("rigid_box", [int(g["box"]) for g in geo], cap, ti.i32)
         put("rigid_seg0", [g["segment"][0] for g in geo], cap, dims=(3,))
         put("rigid_seg1", [g["segment"][1] for g in geo], cap, dims=(3,))
         put("rigid_radius", [g["radius"] for g in geo], cap)

@@ -84,10 +84,14 @@ def pose(state: ti.template(), i):
 
 @ti.func
 def support(model: ti.template(), i, x, r, u):
-    """max over body i's points (com x, rotation r) of u . p: its extent along u [m]."""
+    """max over body i's points (com x, rotation r) of u . p: its extent along u [m]; for a box, in
+    closed form from its half extents (its OBB is the box)."""
     best = -1e30
-    for k in range(model.rigid_point_start[i], model.rigid_point_start[i + 1]):
-        best = ti.max(best, u.dot(x + r @ model.rigid_points[k]))
+    if model.rigid_box[i]:
+        best = u.dot(x) + (ti.abs(r.transpose() @ u)).dot(model.rigid_half[i])
+    else:
+        for k in range(model.rigid_point_start[i], model.rigid_point_start[i + 1]):
+            best = ti.max(best, u.dot(x + r @ model.rigid_points[k]))
     return best
 
 
