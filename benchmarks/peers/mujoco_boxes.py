@@ -5,8 +5,9 @@ import mujoco
 import numpy as np
 
 
-def model_xml(boxes, *, dt: float, friction: float, solver: str) -> str:
-    """boxes: [(half extents (3,), position (3,), velocity (3,), angular velocity (3,), density)]."""
+def model_xml(boxes, *, dt: float, friction: float, solver: str, walls=None) -> str:
+    """boxes: [(half extents (3,), position (3,), velocity (3,), angular velocity (3,), density)]; walls:
+    the half-width [m] of a square bin of four planes around the origin, or None."""
     bodies = []
     for k, (half, pos, _v, _w, rho) in enumerate(boxes):
         h = " ".join(f"{c:.9g}" for c in half)
@@ -18,6 +19,11 @@ def model_xml(boxes, *, dt: float, friction: float, solver: str) -> str:
     return (
         f'<mujoco><option timestep="{dt}" solver="{solver}" gravity="0 -9.81 0"/>'
         f'<worldbody><geom type="plane" size="0 0 1" zaxis="0 1 0" friction="{friction} 0.005 0.0001"/>'
+        + "".join(
+            f'<geom type="plane" size="0 0 1" pos="{-walls * nx} 0 {-walls * nz}" zaxis="{nx} 0 {nz}" '
+            f'friction="{friction} 0.005 0.0001"/>'
+            for nx, nz in (() if walls is None else ((-1, 0), (1, 0), (0, -1), (0, 1)))
+        )
         + "".join(bodies)
         + "</worldbody></mujoco>"
     )
@@ -27,8 +33,9 @@ class Scene:
     """A MuJoCo model and data of `boxes`; step(n) advances n steps; positions() (B,3) [m], speeds,
     penetration: the deepest contact's depth [m] now, contacts: their count now."""
 
-    def __init__(self, boxes, *, dt: float, friction: float, solver: str = "CG"):
-        self.model = mujoco.MjModel.from_xml_string(model_xml(boxes, dt=dt, friction=friction, solver=solver))
+    def __init__(self, boxes, *, dt: float, friction: float, solver: str = "CG", walls=None):
+        xml = model_xml(boxes, dt=dt, friction=friction, solver=solver, walls=walls)
+        self.model = mujoco.MjModel.from_xml_string(xml)
         self.data = mujoco.MjData(self.model)
         for k, (_h, _p, v, w, _rho) in enumerate(boxes):
             # a free joint's qvel: linear velocity (world), then angular velocity in the body's frame

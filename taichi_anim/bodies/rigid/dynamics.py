@@ -26,6 +26,7 @@ import taichi as ti
 from ...errors import DivergenceError, ParameterError
 from ...runtime import data_oriented
 from .contacts import RigidContacts, default_capacity
+from .particle_coupling import ParticleCoupling
 from .quaternion import quat_matrix, quat_mul, quat_normalized, quat_rotation
 
 # DLM's splitting: (principal axis, fraction of the step), symmetric, so the composition is second order.
@@ -120,6 +121,8 @@ class RigidDynamics:
             options = dict(contacts)
             options["capacity"] = options.get("capacity") or default_capacity(model)
             self.contacts = RigidContacts(model, **options)
+        # Particles (and cloth vertices) and bodies push each other, when the scene has both.
+        self.coupling = ParticleCoupling(model) if model.particle_count and contacts is not None else None
 
     def settings(self) -> dict:
         """The scheme and the bodies' acceleration, for run.json."""
@@ -136,6 +139,8 @@ class RigidDynamics:
         pass
 
     def after_substep(self, model, state, h: float, step: int) -> None:
+        if self.coupling is not None:  # the particles have moved to the end of the substep
+            self.coupling.apply(model, state, state.time + h)
         if not isinstance(self.scheme, str):
             self._runge_kutta(model, state, h)
             return
