@@ -36,6 +36,7 @@ FRAMES = {
     "moving_mesh": 130,
     "dominoes": 100,
     "pile": 120,
+    "rigid_cloth": 42,
 }
 
 

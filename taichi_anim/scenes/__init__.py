@@ -1,7 +1,20 @@
 """Demo scenes, by name: what `taichi-anim demo NAME` runs."""
 
 from .. import validate
-from . import blobs, cloth, dominoes, drape, flag, fountain, layers, moving_mesh, pile, spheres, tablecloth
+from . import (
+    blobs,
+    cloth,
+    dominoes,
+    drape,
+    flag,
+    fountain,
+    layers,
+    moving_mesh,
+    pile,
+    rigid_cloth,
+    spheres,
+    tablecloth,
+)
 from .base import Scene
 
 SCENES = {
@@ -16,6 +29,7 @@ SCENES = {
     "moving_mesh": moving_mesh,
     "dominoes": dominoes,
     "pile": pile,
+    "rigid_cloth": rigid_cloth,
 }
 DEFAULT_SCENE = "fountain"
 

@@ -29,6 +29,7 @@ class ParticleCoupling:
         self.rot = model.rigid_array(self, "pc_rot", dims=(3, 3))
         self.inv_inertia = model.rigid_array(self, "pc_inv_inertia", dims=(3, 3))
         self.count = model.new_field(self, "pc_impacts", ti.i32, ())
+        self.time = model.new_field(self, "pc_time", float, ())  # the colliders' time, for moving ones
 
     @property
     def impacts(self) -> int:
@@ -47,10 +48,21 @@ class ParticleCoupling:
                 r @ ti.Matrix([[inv[0], 0, 0], [0, inv[1], 0], [0, 0, inv[2]]]) @ r.transpose()
             )
         self.count[None] = 0
+        self.time[None] = t
         ti.loop_config(serialize=True)
         for i in range(model.live_particles()):
             if model.alive(state, i, t):
                 self._particle(model, state, i)
+
+    @ti.func
+    def _outside_colliders(self, model: ti.template(), x, radius):
+        """x moved out of any collider it was pushed into: a vertex squeezed between a body and the floor
+        stays on the floor's side (colliders do not move; the body is pushed by the impulse instead)."""
+        for c in ti.static(model.colliders):
+            d, n, _ = c.contact(x, self.time[None])
+            if d < radius:
+                x += (radius - d) * n
+        return x
 
     @ti.func
     def _particle(self, model: ti.template(), state: ti.template(), i):
@@ -82,5 +94,6 @@ class ParticleCoupling:
                             self.count[None] += 1
                     if im > 0.0:
                         x -= sep * n  # out to the surface
+                        x = self._outside_colliders(model, x, radius)
         state.particle_x[i] = x
         state.particle_v[i] = v
