@@ -260,3 +260,21 @@ def test_a_box_rests_on_a_triangle_mesh_floor():
     thickness = m.colliders[0].thickness
     assert snap.position[0][1] == pytest.approx(0.1 + thickness, abs=0.006)
     assert np.abs(snap.velocity).max() < 1e-3
+
+
+def test_a_keyframed_paddle_follows_its_keys_and_pushes_a_box():
+    # A kinematic paddle keyed from x = -0.5 to x = 0.5 over 1 s (1 m/s) sweeps a free box resting on a
+    # frictionless floor along: the paddle is exactly where its keys put it, the box ahead of it.
+    motion = ta.RigidMotion([0.0, 1.0], [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    paddle = (ta.shapes.Box((0.05, 0.2, 0.3)), dict(position=(-0.5, 0.2, 0.0), motion=motion))
+    box = (ta.shapes.Box((0.1, 0.1, 0.1)), dict(position=(-0.2, 0.1, 0.0), friction=0.0))
+    m, s, integ = world([paddle, box], plane=((0, 1, 0), 0.0, 0.0))
+    for step in range(240):
+        integ.step(m, s, 1 / 240)
+        if step == 119:  # t = 0.5 s: halfway along the keys
+            np.testing.assert_allclose(s.rigid_snapshot().position[0], [0.0, 0.2, 0.0], atol=1e-6)
+    snap = s.rigid_snapshot()
+    np.testing.assert_allclose(snap.position[0], [0.5, 0.2, 0.0], atol=1e-6)
+    np.testing.assert_allclose(snap.orientation[0], [0.0, 0.0, 0.0, 1.0], atol=1e-9)
+    assert snap.position[1][0] > 0.5 + 0.05 + 0.1 - 0.01  # pushed ahead of the paddle's face
+    assert m.rigid_kinematic[0]

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ... import validate
+from ...collision.motion import RigidMotion
 from ...errors import ParameterError
 from ...shapes import Shape
 from .geometry import contact_geometry
@@ -92,6 +93,7 @@ class RigidBuilder:
         kinematic: bool = False,
         friction: float = 0.5,
         restitution: float = 0.0,
+        motion=None,
     ) -> int:
         """Add a rigid body and return its index.
 
@@ -101,11 +103,15 @@ class RigidBuilder:
         angular_velocity [rad/s], both in world axes (as Newton, Bullet and Jolt take them);
         kinematic: the body moves at its velocities, unmoved by forces (infinite mass); friction: its
         Coulomb coefficient (a contact takes the geometric mean of its two sides', as Box2D and Jolt);
-        restitution in [0, 1] (a contact takes the larger of its two sides')."""
+        restitution in [0, 1] (a contact takes the larger of its two sides'); motion: a RigidMotion
+        (keyframes) that carries the body, placed as given, along: its frame is at R(t) p + T(t) (as a
+        collider's), the body kinematic and its velocities the keyframes' (it pushes, nothing pushes it)."""
         if not isinstance(shape, Shape):
             raise ParameterError(f"shape must be one of ta.shapes (Sphere, Box, ...), got {shape!r}")
         if len(self._rigid) >= MAX_RIGID_BODIES:
             raise ParameterError(f"add_rigid_body: at most {MAX_RIGID_BODIES} rigid bodies")
+        if motion is not None and not isinstance(motion, RigidMotion):
+            raise ParameterError(f"motion must be a RigidMotion or None, got {motion!r}")
         props = shape.mass_properties(validate.positive("density", density))
         moments, axes = principal_frame(props.inertia)
         if moments[0] <= 1e-12 * moments[2]:
@@ -126,7 +132,8 @@ class RigidBuilder:
                 q=quat_product(q_shape, q_principal),
                 v=np.asarray(validate.vec3("velocity", velocity)),
                 w=np.asarray(validate.vec3("angular_velocity", angular_velocity)),
-                kinematic=validate.flag("kinematic", kinematic),
+                kinematic=validate.flag("kinematic", kinematic) or motion is not None,
+                motion=motion,
                 friction=validate.non_negative("friction", friction),
                 restitution=validate.in_range("restitution", restitution, 0.0, 1.0),
                 geometry=contact_geometry(shape, props.com, axes),
@@ -142,7 +149,11 @@ class RigidBuilder:
         """run.json's record of the bodies (shape, density, mass, kinematic)."""
         return {
             "rigid_bodies": [
-                {**b["shape"].settings(), **{k: b[k] for k in ("density", "mass", "kinematic")}}
+                {
+                    **b["shape"].settings(),
+                    **{k: b[k] for k in ("density", "mass", "kinematic")},
+                    **({"motion": b["motion"].settings()} if b["motion"] is not None else {}),
+                }  # fmt: skip
                 for b in self._rigid
             ]
         }

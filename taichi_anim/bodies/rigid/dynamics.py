@@ -23,6 +23,7 @@ n/2 (Runge-Kutta of order >= 2, exact).
 import numpy as np
 import taichi as ti
 
+from ...collision.motion import quat_rotate
 from ...errors import DivergenceError, ParameterError
 from ...runtime import data_oriented
 from .contacts import RigidContacts, default_capacity
@@ -141,8 +142,13 @@ class RigidDynamics:
     def after_substep(self, model, state, h: float, step: int) -> None:
         if self.coupling is not None:  # the particles have moved to the end of the substep
             self.coupling.apply(model, state, state.time + h)
+        keyframed = bool(model.rigid_motions)
+        if keyframed:  # their velocities over the substep, for the contacts and the drift
+            self._keyframes(model, state, state.time + 0.5 * h, False)
         if not isinstance(self.scheme, str):
             self._runge_kutta(model, state, h)
+            if keyframed:
+                self._keyframes(model, state, state.time + h, True)
             return
         self._kick(model, state, h)
         c = self.contacts
@@ -151,6 +157,8 @@ class RigidDynamics:
             c.prepare(model, state, h, c.collision_sweeps)  # with the collision phase
             c.solve(model, state, c.iterations, 0)
         self._drift(model, state, h)
+        if keyframed:  # exactly where the keyframes put them at the substep's end
+            self._keyframes(model, state, state.time + h, True)
         if c is not None:
             c.solve(model, state, c.relax_iterations, 1)  # and keeps the impulses for the next step
 
@@ -174,6 +182,18 @@ class RigidDynamics:
         s += state.rigid_v[i].sum() + state.rigid_w[i].sum()
         if not (ti.abs(s) < ti.math.inf):  # NaN fails every comparison
             ti.atomic_max(self._bad[None], i)
+
+    @ti.kernel
+    def _keyframes(self, model: ti.template(), state: ti.template(), t: float, poses: ti.template()):
+        """Keyframed bodies at time t [s]: their velocities (omega and omega x (x - T) + dT/dt), and
+        with `poses` their pose, R(t) x0 + T(t) and q(t) q0 from the rest pose (x0, q0)."""
+        for k, motion, x0, q0 in ti.static(model.rigid_motions):
+            q, tr, omega, vel = motion.motion_at(t)
+            if ti.static(poses):
+                state.rigid_x[k] = quat_rotate(q, ti.Vector(x0, dt=float)) + tr
+                state.rigid_q[k] = quat_normalized(quat_mul(q, ti.Vector(q0, dt=float)))
+            state.rigid_w[k] = omega
+            state.rigid_v[k] = omega.cross(state.rigid_x[k] - tr) + vel
 
     @ti.func
     def _linear_accel(self, model: ti.template(), state: ti.template(), i):

@@ -29,6 +29,14 @@ class RigidModel:
         self.rigid_principal = stack("principal", (4,))  # principal frame -> shape frame
         self.rigid_moments = stack("moments", (3,))
         self.rigid_kinematic = np.array([x["kinematic"] for x in bodies], dtype=bool)
+        # Keyframed bodies: (index, RigidMotion, rest com (3,), rest orientation (4,)) each.
+        self.rigid_motions = tuple(
+            (k, x["motion"], tuple(x["x"]), tuple(x["q"]))
+            for k, x in enumerate(bodies)
+            if x["motion"] is not None
+        )
+        for _k, motion, _x, _q in self.rigid_motions:
+            motion.allocate()
         self._rigid_start = {k: stack(k, (n,)) for k, n in (("x", 3), ("q", 4), ("v", 3), ("w", 3))}
         for a in (self.rigid_mass, self.rigid_inertia, self.rigid_com, self.rigid_kinematic):
             a.setflags(write=False)

@@ -10,7 +10,7 @@ import taichi as ti
 from ... import validate
 from ...errors import ParameterError
 from ...runtime import data_oriented
-from .quaternion import quat_conjugate, quat_product, quat_to_matrix
+from .quaternion import matrix_to_quat, quat_conjugate, quat_product, quat_to_matrix
 
 
 @dataclass
@@ -50,7 +50,11 @@ class RigidState:
     def _start_rigid(self, model) -> None:
         if not model.rigid_count:
             return
-        start = model._rigid_start
+        start = {k: v.copy() for k, v in model._rigid_start.items()}
+        for k, motion, x0, q0 in model.rigid_motions:  # keyframed: where the keyframes have it at t = 0
+            r, tr = motion.pose(0.0)
+            start["x"][k] = r @ np.asarray(x0) + tr
+            start["q"][k] = quat_product(matrix_to_quat(r), np.asarray(q0))
         for name in ("x", "q", "v", "w"):
             getattr(self, f"rigid_{name}").from_numpy(model.rigid_padded(start[name]))
         zero = model.rigid_padded(np.zeros((model.rigid_count, 3)))
