@@ -193,6 +193,12 @@ class Scene:
         }
 
 
+def floor_outline(lo, hi) -> tuple:
+    """Guides: the floor's rectangle (y = 0) under the region lo..hi [m], as (begin (4,3), end (4,3))."""
+    floor = np.array([[lo[0], 0.0, lo[2]], [hi[0], 0.0, lo[2]], [hi[0], 0.0, hi[2]], [lo[0], 0.0, hi[2]]])
+    return floor, np.roll(floor, -1, axis=0)
+
+
 def _box_edges(lo, hi):
     """The 12 edges of the box lo..hi as (begin (12,3), end (12,3))."""
     corners = np.array([[(lo, hi)[i >> k & 1][k] for k in range(3)] for i in range(8)])

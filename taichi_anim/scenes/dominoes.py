@@ -8,7 +8,7 @@ exports the dominoes as one mesh."""
 import numpy as np
 
 from .. import Builder, make_integrator, shapes
-from .base import Scene, frame_step
+from .base import Scene, floor_outline, frame_step
 
 FRAME_DT = 1 / 60  # [s]
 
@@ -48,7 +48,6 @@ def build(
     model = b.finalize(seed=seed)
     length = (count - 1) * spacing
     lo, hi = (-0.3, 0.0, -0.6), (length + 0.5, height + 0.1, 0.6)
-    floor = np.array([[lo[0], 0.0, lo[2]], [hi[0], 0.0, lo[2]], [hi[0], 0.0, hi[2]], [lo[0], 0.0, hi[2]]])
     return Scene(
         name="dominoes",
         description=f"a row of {count} dominoes falling in turn",
@@ -69,7 +68,7 @@ def build(
             "push": push,
         },
         frames=240,
-        guides=(floor, np.roll(floor, -1, axis=0)),
+        guides=floor_outline(lo, hi),
         view=(0.3, 0.35, 1.0),
         zoom=1.5,
     )

@@ -6,10 +6,8 @@ each cloth vertex that hits a box takes a frictional impulse and gives the box t
 each other and the floor through the rigid contacts. Each frame exports the cloth and the boxes as PLY
 meshes."""
 
-import numpy as np
-
 from .. import Builder, ClothMaterial, make_integrator, shapes
-from .base import Scene, frame_step
+from .base import Scene, floor_outline, frame_step
 
 FRAME_DT = 1 / 60  # [s]
 
@@ -50,7 +48,6 @@ def build(
     )
     model = b.finalize(seed=seed)
     lo, hi = (-1.2, 0.0, -1.0), (1.6, top + 0.5, 1.0)
-    floor = np.array([[lo[0], 0.0, lo[2]], [hi[0], 0.0, lo[2]], [hi[0], 0.0, hi[2]], [lo[0], 0.0, hi[2]]])
     return Scene(
         name="rigid_cloth",
         description="a cloth falling on a leaning stack of boxes, which tips over",
@@ -63,7 +60,7 @@ def build(
         point_radius=0.01,
         options={"boxes": boxes, "lean": lean, "cloth_density": cloth_density, "resolution": n},
         frames=150,
-        guides=(floor, np.roll(floor, -1, axis=0)),
+        guides=floor_outline(lo, hi),
         view=(0.5, 0.45, 1.0),
         zoom=1.6,
     )

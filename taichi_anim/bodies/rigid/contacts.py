@@ -17,6 +17,7 @@ import taichi as ti
 from ...errors import DivergenceError
 from ...runtime import data_oriented
 from .narrow_phase import NO_BODY, body_sdf, obb_overlap, pair_normal, pose, support
+from .quaternion import world_inverse_inertia
 
 CASCADE_LEVELS = ("pairs", "spheres", "aabb", "obb", "touching")
 # Sweeps of the collision phase: an impact passes one contact per sweep against the contacts' order
@@ -174,9 +175,7 @@ class RigidContacts:
             r = pose(state, i)[1]
             self.rot[i] = r
             inv = model.rigid_inv_moments[i]
-            self.inv_inertia[i] = (
-                r @ ti.Matrix([[inv[0], 0, 0], [0, inv[1], 0], [0, 0, inv[2]]]) @ r.transpose()
-            )
+            self.inv_inertia[i] = world_inverse_inertia(r, inv)
         ti.loop_config(serialize=True)
         for a in range(model.live_rigid()):
             xa, ra = state.rigid_x[a], self.rot[a]

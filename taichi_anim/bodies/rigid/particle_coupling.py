@@ -17,7 +17,7 @@ import taichi as ti
 
 from ...runtime import data_oriented
 from .narrow_phase import body_sdf
-from .quaternion import quat_matrix
+from .quaternion import quat_matrix, world_inverse_inertia
 
 
 @data_oriented
@@ -44,9 +44,7 @@ class ParticleCoupling:
             r = quat_matrix(state.rigid_q[b])
             self.rot[b] = r
             inv = model.rigid_inv_moments[b]
-            self.inv_inertia[b] = (
-                r @ ti.Matrix([[inv[0], 0, 0], [0, inv[1], 0], [0, 0, inv[2]]]) @ r.transpose()
-            )
+            self.inv_inertia[b] = world_inverse_inertia(r, inv)
         self.count[None] = 0
         self.time[None] = t
         ti.loop_config(serialize=True)

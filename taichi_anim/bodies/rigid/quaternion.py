@@ -38,6 +38,16 @@ def quat_rotation(w, h):
 
 
 @ti.func
+def world_inverse_inertia(r, inv_moments):
+    """R diag(inv_moments) R^T: a body's inverse inertia in world axes, its principal frame at R."""
+    return (
+        r
+        @ ti.Matrix([[inv_moments[0], 0, 0], [0, inv_moments[1], 0], [0, 0, inv_moments[2]]])
+        @ r.transpose()
+    )
+
+
+@ti.func
 def quat_normalized(q):
     return q / q.norm()
 
