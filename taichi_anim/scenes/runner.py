@@ -298,6 +298,7 @@ def _summary(scene, stepper, out, frames, run, files, complete: bool) -> dict:
     if not complete:
         return summary  # the state may be non-finite or the runtime interrupted: report only the counts
     summary["particles_alive"] = int(state.alive_mask().sum())
+    summary["rigid_bodies"] = int(state.model.rigid_count)
     spheres = stepper.contacts
     if spheres is not None:
         overlap, contacts = spheres.overlap_stats(model, state)
@@ -347,6 +348,8 @@ def summary_line(s: dict) -> str:
     status = "" if s.get("status", "complete") == "complete" else f" ({s['status']})"
     alive = s.get("particles_alive")
     alive = "" if alive is None else f"{alive} particles alive, "
+    if s.get("rigid_bodies"):
+        alive = ("" if not s.get("particles_alive") else alive) + f"{s['rigid_bodies']} rigid bodies, "
     method = f"{s['integrator']} x{s['substeps']}/frame" + (
         " (auto: cheapest stable)" if s["integrator_auto"] else ""
     )
