@@ -215,3 +215,20 @@ def test_bad_bodies_are_refused_with_the_parameter_named():
         b.add_rigid_body("box")
     with pytest.raises(ParameterError, match="velocity"):
         b.add_rigid_body(TUMBLER, velocity=(np.nan, 0, 0))
+
+
+@pytest.mark.parametrize("method", ["symplectic_euler", "rk4"])
+def test_damping_decays_the_velocities_exponentially(method):
+    # dv/dt = -c v: v(t) = v0 e^(-c t), exactly per step for the semi-implicit kick (e^(-c h) each step),
+    # to RK4's order for the tableau. A spin about a principal axis decays the same way.
+    m, s = scene(
+        (
+            TUMBLER,
+            dict(velocity=(2.0, 0, 0), angular_velocity=(0, 0, 3.0), linear_damping=0.5, angular_damping=2.0),
+        ),
+        gravity=False,
+    )
+    snap = run(m, s, method, 0.01, 100)
+    tol = 1e-12 if method == "symplectic_euler" else 1e-9
+    np.testing.assert_allclose(snap.velocity[0], [2.0 * np.exp(-0.5), 0, 0], atol=tol)
+    np.testing.assert_allclose(snap.angular_velocity[0], [0, 0, 3.0 * np.exp(-2.0)], atol=tol)

@@ -93,6 +93,8 @@ class RigidBuilder:
         kinematic: bool = False,
         friction: float = 0.5,
         restitution: float = 0.0,
+        linear_damping: float = 0.0,
+        angular_damping: float = 0.0,
         motion=None,
     ) -> int:
         """Add a rigid body and return its index.
@@ -103,7 +105,9 @@ class RigidBuilder:
         angular_velocity [rad/s], both in world axes (as Newton, Bullet and Jolt take them);
         kinematic: the body moves at its velocities, unmoved by forces (infinite mass); friction: its
         Coulomb coefficient (a contact takes the geometric mean of its two sides', as Box2D and Jolt);
-        restitution in [0, 1] (a contact takes the larger of its two sides'); motion: a RigidMotion
+        restitution in [0, 1] (a contact takes the larger of its two sides'); linear_damping and
+        angular_damping [1/s]: drag dv/dt = -c v and dw/dt = -c w, integrated exactly over each step
+        (v e^(-c h), as Jolt and Bullet damp); motion: a RigidMotion
         (keyframes) that carries the body, placed as given, along: its frame is at R(t) p + T(t) (as a
         collider's), the body kinematic and its velocities the keyframes' (it pushes, nothing pushes it)."""
         if not isinstance(shape, Shape):
@@ -136,6 +140,10 @@ class RigidBuilder:
                 motion=motion,
                 friction=validate.non_negative("friction", friction),
                 restitution=validate.in_range("restitution", restitution, 0.0, 1.0),
+                damping=(
+                    validate.non_negative("linear_damping", linear_damping),
+                    validate.non_negative("angular_damping", angular_damping),
+                ),  # fmt: skip
                 geometry=contact_geometry(shape, props.com, axes),
             )
         )

@@ -206,8 +206,9 @@ class RigidDynamics:
         for i in range(model.live_rigid()):
             if model.rigid_inv_mass[i] > 0.0:
                 q = state.rigid_q[i]
-                state.rigid_v[i] += h * self._linear_accel(model, state, i)
-                mom = angular_momentum(q, state.rigid_w[i], model.rigid_inv_moments[i])
+                damp = ti.exp(-h * model.rigid_damping[i])  # the drag's exact decay over the step
+                state.rigid_v[i] = damp[0] * state.rigid_v[i] + h * self._linear_accel(model, state, i)
+                mom = angular_momentum(q, damp[1] * state.rigid_w[i], model.rigid_inv_moments[i])
                 state.rigid_w[i] = angular_velocity(
                     q, mom + h * state.rigid_torque[i], model.rigid_inv_moments[i]
                 )
@@ -235,7 +236,8 @@ class RigidDynamics:
         qn = quat_normalized(q)
         w = angular_velocity(qn, mom, model.rigid_inv_moments[i])
         dq = 0.5 * quat_mul(ti.Vector([w[0], w[1], w[2], 0.0]), qn)
-        return v, dq, self._linear_accel(model, state, i), state.rigid_torque[i]
+        c = model.rigid_damping[i]  # drag: -c v and -c L (the tableau integrates it to its order)
+        return v, dq, self._linear_accel(model, state, i) - c[0] * v, state.rigid_torque[i] - c[1] * mom
 
     @ti.kernel
     def _runge_kutta(self, model: ti.template(), state: ti.template(), h: float):

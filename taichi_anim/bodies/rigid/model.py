@@ -82,7 +82,8 @@ class RigidModel:
         (rigid_round: a core segment rigid_seg0-rigid_seg1 of radius rigid_radius; else the planes
         rigid_planes from rigid_plane_start[i]; rigid_box: a box, whose OBB is exact), rigid_bound
         (sphere radius about the com) and rigid_half (OBB half extents along the principal axes), all in
-        the principal frame; and its rigid_friction and rigid_restitution."""
+        the principal frame; and its rigid_friction, rigid_restitution and rigid_damping (linear,
+        angular [1/s])."""
         geo = [x["geometry"] for x in bodies]
         points = np.concatenate([g["points"] for g in geo])
         planes = np.concatenate([g["planes"] for g in geo])
@@ -115,6 +116,7 @@ class RigidModel:
         put("rigid_bound", [g["bound"] for g in geo], cap)
         put("rigid_half", [g["half_extents"] for g in geo], cap, dims=(3,))
         put("rigid_friction", [x["friction"] for x in bodies], cap)
+        put("rigid_damping", [x["damping"] for x in bodies], cap, dims=(2,))  # linear, angular [1/s]
         put("rigid_restitution", [x["restitution"] for x in bodies], cap)
         self.rigid_reach = float(max(g["radius"] for g in geo)) + self.RIGID_MARGIN
 
