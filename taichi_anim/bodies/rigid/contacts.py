@@ -15,7 +15,7 @@ import numpy as np
 import taichi as ti
 
 from ...errors import DivergenceError
-from ...runtime import data_oriented
+from ...runtime import compile_with, data_oriented
 from .narrow_phase import NO_BODY, body_sdf, obb_overlap, pair_normal, pose, support
 from .quaternion import world_inverse_inertia
 
@@ -161,6 +161,10 @@ class RigidContacts:
                 if sep < margin:
                     self._add(model, a, b, side, k, point, normal, sep, ti.Vector.zero(float, 3), mu, e, b)
 
+    # Without Taichi's CFG passes the detection compiles in 0.9 s instead of 3.8 s (prepare: 0.4 instead
+    # of 1.2 s), and the dominoes demo's cold start is 3.9 s longer than its warm one instead of 7.8 s;
+    # a step of the 210-box pyramid took the same time either way (0.55 ms detect, 0.47 ms prepare).
+    @compile_with(cfg_optimization=False)
     @ti.kernel
     def detect(self, model: ti.template(), state: ti.template(), t: float, h: float):
         """Every contact of the bodies' current poses (time t [s] for moving colliders) that can close
@@ -281,6 +285,7 @@ class RigidContacts:
             found = lo
         return found
 
+    @compile_with(cfg_optimization=False)
     @ti.kernel
     def prepare(self, model: ti.template(), state: ti.template(), h: float, collision_sweeps: ti.i32):
         """Anchors, effective masses, targets; the last step's impulses applied again (warm start); then
