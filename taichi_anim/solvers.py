@@ -1,6 +1,6 @@
-"""The solver protocol: what the Stepper's ordered list of solvers (sphere contacts, cloth self-contact,
-and whatever a user appends) is asked, and when. A time-integration method (integrators/) proposes each
-(sub)step; the solvers then correct what it proposed, one after the other.
+"""The solver protocol: what the Stepper's ordered list of solvers (rigid bodies, sphere contacts, cloth
+self-contact, and whatever a user appends) is asked, and when. A time-integration method (integrators/)
+proposes each (sub)step; the solvers then correct what it proposed, one after the other.
 
 When the Stepper calls each hook (list order every time):
   substeps(model, state, dt) -> int      at the start of a step: how many substeps the step needs (the
@@ -18,6 +18,10 @@ and, optionally,
   separation_speed(model, state, dt)     [m/s] the speed the solver may legitimately give particles at
                                          the first step (spheres placed overlapping are pushed apart at
                                          overlap / dt); the watchdog's speed bound allows it
+
+The rigid bodies' solver (bodies/rigid/dynamics.py) comes first: it steps the bodies by the method's
+`rigid_scheme` (its constructor gets the method: `takes_method`), after the particles they push and that
+push them have moved.
 
 Coupling is Gauss-Seidel through the State: each solver reads the positions and velocities the method
 and the solvers before it left, and writes its corrections (impulses as velocity changes, projections as
