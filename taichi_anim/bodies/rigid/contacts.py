@@ -281,8 +281,9 @@ class RigidContacts:
             else:
                 hi = mid
         found = -1
-        if lo < self.prev_count[None] and self.prev_key[lo] == key:
-            found = lo
+        if lo < self.prev_count[None]:  # nested: Taichi's `and` evaluates both sides (no short circuit)
+            if self.prev_key[lo] == key:
+                found = lo
         return found
 
     @compile_with(cfg_optimization=False)
@@ -324,7 +325,10 @@ class RigidContacts:
             # a contact that was is resting, and the solver's leftover there (a tall stack's first steps)
             # is no impact to restitute.
             self.bounce[c] = 0.0
-            if self.e[c] > 0.0 and (prev < 0 or self.prev_impulse[prev].dot(n) <= 0.0):
+            pushing = False
+            if prev >= 0:  # nested: `or` would read prev_impulse[-1]
+                pushing = self.prev_impulse[prev].dot(n) > 0.0
+            if self.e[c] > 0.0 and not pushing:
                 self.bounce[c] = self.e[c]
             if prev >= 0:
                 p = self.prev_impulse[prev]

@@ -122,7 +122,9 @@ def pair_normal(model: ti.template(), a, xa, ra, b, xb, rb):
         u = ti.Vector.zero(float, 3)
         bias = ti.cast(0.0, float)
         if m < nb + na:
-            plane = model.rigid_planes[b0 + m] if m < nb else model.rigid_planes[a0 + m - nb]
+            # one read at a selected index: Taichi evaluates both sides of a conditional expression, and
+            # the unselected read would fall past the plane array for the last body
+            plane = model.rigid_planes[b0 + m if m < nb else a0 + m - nb]
             u = ti.Vector([plane[0], plane[1], plane[2]])
             u = rb @ u if m < nb else -(ra @ u)
             bias = 0.0 if m < nb else FACE_BIAS
