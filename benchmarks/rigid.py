@@ -1,13 +1,15 @@
-"""Rigid bodies against MuJoCo on the same scenes in the same run: a 20-box tower, a pyramid of 20 boxes per
-side (210 boxes) and a row of 30 dominoes, on a plane, Y up.
+"""Rigid bodies against MuJoCo and PyBullet on the same scenes in the same run: a 20-box tower, a pyramid
+of 20 boxes per side (210 boxes), a row of 30 dominoes and 1000 boxes poured into a bin, Y up.
 
-Both engines step the same boxes (sizes, densities, friction 0.6 box-box and box-floor) at the same time
-step DT, for T_END simulated seconds. Ours: semi-implicit Euler, sequential impulses (8 iterations + 4
-relaxation sweeps, the defaults), f32. MuJoCo: its CG and Newton solvers (soft contacts, its defaults
-otherwise; peers/mujoco_boxes.py). Per engine and scene: ms per step (median of STEP_BATCH-step batches
-after the first second, compile reported apart for ours: the first step), contacts at the end, the
-largest drift of a box from its start (tower, pyramid), the deepest penetration at the end, the kinetic
-energy at the end; for the dominoes, how many are down (tilted past 45 degrees) and when the last fell.
+The engines step the same boxes (sizes, densities, friction 0.6 box-box and box-floor) at the same time
+step DT, for T_END simulated seconds (dominoes 4 s, bin 3 s). Ours: semi-implicit Euler, sequential
+impulses (8 iterations + 4 relaxation sweeps, the defaults, and 4 + 1), f32. MuJoCo: its CG and Newton
+solvers (soft contacts, its defaults otherwise; peers/mujoco_boxes.py). PyBullet: its defaults (10 solver
+iterations; peers/pybullet_boxes.py). Per engine and scene: ms per step (median of STEP_BATCH-step
+batches after the first second, compile reported apart for ours: the first step), contacts at the end,
+the largest drift of a box from its start (tower, pyramid), the deepest penetration at the end, the
+kinetic energy at the end; for the dominoes, how many are down (tilted past 45 degrees) and when the
+last fell.
 
     .venv/bin/python benchmarks/rigid.py [--quick]
 """
@@ -163,6 +165,7 @@ def tilted(engine):
 def main():
     args = parse_args(__doc__)
     mj = peer("mujoco_boxes")
+    bullet = peer("pybullet_boxes")
     t_end = 2.0 if args.quick else 10.0
     side = 8 if args.quick else 20
     count = 200 if args.quick else 1000
@@ -187,6 +190,9 @@ def main():
             for solver in ("CG", "Newton"):
                 scene = mj.Scene(boxes, dt=DT, friction=FRICTION, solver=solver, walls=walls)
                 results[f"mujoco {solver}"] = measure(scene, boxes, seconds, host_clock, fallen)
+        if bullet is not None:
+            scene = bullet.Scene(boxes, dt=DT, friction=FRICTION, walls=walls)
+            results["pybullet"] = measure(scene, boxes, seconds, host_clock, fallen)
         data[name] = results
         for engine, r in results.items():
             log(f"  {engine}: {r['ms_per_step']:.3f} ms/step, drift {r['drift_m']:.4f} m")
@@ -198,13 +204,14 @@ def main():
             ])  # fmt: skip
     page = Page(
         "rigid" if not args.quick else "rigid_quick",
-        "Rigid bodies against MuJoCo: a tower, a pyramid, dominoes and a bin of boxes",
+        "Rigid bodies against MuJoCo and PyBullet: a tower, a pyramid, dominoes and a bin of boxes",
         args,
         {"dt": f"{DT} s (both engines)", "simulated": f"{t_end} s (dominoes 4 s, bin 3 s)",
          "friction": FRICTION,
          "ours": "f32, symplectic_euler (semi-implicit), 8 iterations + 4 relaxation sweeps (the defaults; "
                  "and 4 + 1), margin 2 cm",
-         "mujoco": f"{getattr(mj, 'VERSION', 'absent')}, solvers CG and Newton, defaults otherwise"},
+         "mujoco": f"{getattr(mj, 'VERSION', 'absent')}, solvers CG and Newton, defaults otherwise",
+         "pybullet": f"API {getattr(bullet, 'VERSION', 'absent')}, defaults (10 iterations)"},
     )  # fmt: skip
     page.table(
         "Per scene",

@@ -248,7 +248,7 @@ class RigidContacts:
                         vs,
                         mu,
                         e,
-                        ti.i32(self.sizes[1]) - len(self.colliders) + c,  # read at run time: no size baked in
+                        ti.i32(self.sizes[1]) - ti.static(len(self.colliders)) + c,  # no size baked in
                     )
 
     # -- the solve --------------------------------------------------------------------------------------
