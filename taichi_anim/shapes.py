@@ -70,7 +70,7 @@ class Sphere(Shape):
         return MassProperties(m, np.zeros(3), np.eye(3) * 0.4 * m * r * r)
 
     def triangles(self):
-        return _uv_sphere(self.radius, np.zeros(3), rings=12, segments=24)
+        return uv_sphere(np.zeros(3), self.radius, rings=12, segments=24)
 
     def settings(self) -> dict:
         return {"shape": "sphere", "radius": self.radius}
@@ -131,7 +131,7 @@ class Capsule(Shape):
         return MassProperties(m_cyl + m_caps, np.zeros(3), np.diag([side, axial, side]))
 
     def triangles(self):
-        v, f = _uv_sphere(self.radius, np.zeros(3), rings=12, segments=24)
+        v, f = uv_sphere(np.zeros(3), self.radius, rings=12, segments=24)
         v = v.copy()
         v[:, 1] += np.where(v[:, 1] >= 0.0, self.half_length, -self.half_length)  # split at the equator
         return v, f
@@ -252,26 +252,25 @@ def polyhedron_mass_properties(vertices, faces, density: float) -> MassPropertie
     return MassProperties(float(m), c, inertia)
 
 
-def _uv_sphere(radius: float, centre: np.ndarray, *, rings: int, segments: int):
-    """A closed latitude-longitude sphere (poles as single vertices), faces wound outwards. `rings` is
-    even, so a ring of vertices lies on the equator (the capsule splits its halves there)."""
+def uv_sphere(center, radius: float, *, rings: int = 24, segments: int = 48):
+    """A UV sphere for drawing: (vertices (V,3) [m], triangles (F,3) int, counter-clockwise outside)."""
     theta = np.linspace(0.0, np.pi, rings + 1)[1:-1]
     phi = np.linspace(0.0, 2.0 * np.pi, segments, endpoint=False)
     t, p = np.meshgrid(theta, phi, indexing="ij")
     ring = np.stack([np.sin(t) * np.cos(p), np.cos(t), -np.sin(t) * np.sin(p)], axis=-1).reshape(-1, 3)
-    v = np.vstack([[0.0, 1.0, 0.0], ring, [0.0, -1.0, 0.0]]) * radius + centre
-    faces = []
-    s = segments
-    for j in range(s):
-        faces.append([0, 1 + j, 1 + (j + 1) % s])
+    v = np.vstack([[0.0, 1.0, 0.0], ring, [0.0, -1.0, 0.0]]) * radius + np.asarray(center)
+    s = np.arange(segments)
+    s1 = (s + 1) % segments
+    top = np.stack([np.zeros(segments, int), 1 + s, 1 + s1], axis=1)
+    bottom_pole = len(v) - 1
+    last = 1 + (rings - 2) * segments
+    bottom = np.stack([np.full(segments, bottom_pole), last + s1, last + s], axis=1)
+    quads = []
     for r in range(rings - 2):
-        for j in range(s):
-            a, b = 1 + r * s + j, 1 + r * s + (j + 1) % s
-            faces += [[a, a + s, b + s], [a, b + s, b]]
-    south, last = len(v) - 1, 1 + (rings - 2) * s
-    for j in range(s):
-        faces.append([south, last + (j + 1) % s, last + j])
-    return v, np.array(faces, dtype=np.int64)
+        a, b = 1 + r * segments + s, 1 + r * segments + s1
+        c, d = a + segments, b + segments
+        quads += [np.stack([a, c, b], axis=1), np.stack([b, c, d], axis=1)]
+    return v, np.vstack([top, *quads, bottom])
 
 
 __all__ = ["Box", "Capsule", "ConvexHull", "MassProperties", "Mesh", "Shape", "Sphere"]

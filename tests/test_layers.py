@@ -43,7 +43,7 @@ LAYERS = [
     # meshes and cloth materials from arrays or files; what a frame shows (plain data: points, meshes,
     # lines), which body kinds make and io/, render/ and the viewer read
     # (shapes: rigid bodies' shapes and their mass properties)
-    ("geometry", "cloth", "content", "shapes"),
+    ("rotations", "geometry", "cloth", "content", "shapes"),
     # geometry queries, prefix sums, matrix-free linear solvers
     ("spatial", "linalg"),
     # the parts a scene is made of: force terms, colliders and contacts, particle sources, body kinds

@@ -18,41 +18,8 @@ from taichi.lang import impl
 
 from .. import validate
 from ..errors import ParameterError
+from ..rotations import matrix_to_quat, quat_to_matrix
 from ..runtime import data_oriented, np_float
-
-
-def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """(K,4) unit quaternions (x, y, z, w) -> (K,3,3) rotation matrices."""
-    x, y, z, w = q.T
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        axis=1,
-    )
-
-
-def _matrix_to_quat(m: np.ndarray) -> np.ndarray:
-    """(3,3) rotation matrix -> unit quaternion (x, y, z, w), from the largest of the four squared
-    components (Shepperd, J. Guidance and Control 1(3), 1978), so no division by a small number."""
-    tr = np.trace(m)
-    cand = [tr, m[0, 0], m[1, 1], m[2, 2]]
-    k = int(np.argmax(cand))
-    if k == 0:
-        s = 2.0 * np.sqrt(1.0 + tr)
-        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s]
-    else:
-        i = k - 1
-        j, c = (i + 1) % 3, (i + 2) % 3
-        s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[c, c])
-        q = [0.0, 0.0, 0.0, (m[c, j] - m[j, c]) / s]
-        q[i] = 0.25 * s
-        q[j] = (m[j, i] + m[i, j]) / s
-        q[c] = (m[c, i] + m[i, c]) / s
-    q = np.asarray(q)
-    return q / np.linalg.norm(q)
 
 
 def _rotations(rotations, count: int) -> np.ndarray:
@@ -65,7 +32,7 @@ def _rotations(rotations, count: int) -> np.ndarray:
         norm = np.linalg.norm(r, axis=1)
         if np.any(norm < 1e-12):
             raise ParameterError(f"rotations: quaternion {int(np.argmin(norm))} is zero")
-        return _quat_to_matrix(r / norm[:, None])
+        return quat_to_matrix(r / norm[:, None])
     if r.shape == (count, 3, 3):
         validate.finite_array("rotations", r, (3, 3))
         err = np.abs(np.einsum("kji,kjl->kil", r, r) - np.eye(3)).max(axis=(1, 2))
@@ -116,7 +83,7 @@ class RigidMotion:
         self.axes = np.tile([1.0, 0.0, 0.0], (k, 1))
         self.angles = np.zeros(k)
         for s in range(k - 1):
-            q = _matrix_to_quat(self.rotations[s].T @ self.rotations[s + 1])
+            q = matrix_to_quat(self.rotations[s].T @ self.rotations[s + 1])
             if q[3] < 0.0:
                 q = -q
             sin_half = np.linalg.norm(q[:3])
@@ -178,7 +145,7 @@ class RigidMotion:
         self._program = program
         k, f = self.count, np_float()
         span = np.diff(self.times) if k > 1 else np.zeros(0)
-        quats = np.array([_matrix_to_quat(r) for r in self.rotations])
+        quats = np.array([matrix_to_quat(r) for r in self.rotations])
         # Per segment (the last row unused): rotation axis and half angle in the keyframe's frame, the
         # world angular velocity R_k a_k theta_k / dt_k and the translation's velocity.
         omega = np.zeros((k, 3))
@@ -223,7 +190,7 @@ class RigidMotion:
         tr = self.key_T[k]
         if ti.static(self.count > 1):
             half = s * self.seg_half_angle[k]
-            q = _quat_mul(q, _vec4(ti.sin(half) * self.seg_axis[k], ti.cos(half)))
+            q = quat_mul(q, _vec4(ti.sin(half) * self.seg_axis[k], ti.cos(half)))
             tr = (1.0 - s) * tr + s * self.key_T[k + 1]
         return q, tr
 
@@ -295,7 +262,7 @@ def _vec4(v, w):
 
 
 @ti.func
-def _quat_mul(a, b):
+def quat_mul(a, b):
     """Hamilton product of quaternions (x, y, z, w)."""
     u = ti.Vector([a[0], a[1], a[2]], dt=float)
     v = ti.Vector([b[0], b[1], b[2]], dt=float)

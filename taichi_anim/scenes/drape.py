@@ -9,29 +9,9 @@ normals."""
 import numpy as np
 
 from .. import Builder
+from ..shapes import uv_sphere
 from .base import Scene, frame_step
 from .cloth import FRAME_DT, cloth_method, material_for, substeps_for
-
-
-def uv_sphere(center, radius: float, *, rings: int = 24, segments: int = 48):
-    """A UV sphere for drawing: (vertices (V,3) [m], triangles (F,3) int, counter-clockwise outside)."""
-    theta = np.linspace(0.0, np.pi, rings + 1)[1:-1]
-    phi = np.linspace(0.0, 2.0 * np.pi, segments, endpoint=False)
-    t, p = np.meshgrid(theta, phi, indexing="ij")
-    ring = np.stack([np.sin(t) * np.cos(p), np.cos(t), -np.sin(t) * np.sin(p)], axis=-1).reshape(-1, 3)
-    v = np.vstack([[0.0, 1.0, 0.0], ring, [0.0, -1.0, 0.0]]) * radius + np.asarray(center)
-    s = np.arange(segments)
-    s1 = (s + 1) % segments
-    top = np.stack([np.zeros(segments, int), 1 + s, 1 + s1], axis=1)
-    bottom_pole = len(v) - 1
-    last = 1 + (rings - 2) * segments
-    bottom = np.stack([np.full(segments, bottom_pole), last + s1, last + s], axis=1)
-    quads = []
-    for r in range(rings - 2):
-        a, b = 1 + r * segments + s, 1 + r * segments + s1
-        c, d = a + segments, b + segments
-        quads += [np.stack([a, c, b], axis=1), np.stack([b, c, d], axis=1)]
-    return v, np.vstack([top, *quads, bottom])
 
 
 def build(

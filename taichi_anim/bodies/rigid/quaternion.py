@@ -4,14 +4,10 @@ vector as q v q*; q1 * q2 applies q2 first (Hamilton product, as Eigen, Newton a
 import numpy as np
 import taichi as ti
 
-
-@ti.func
-def quat_mul(a, b):
-    """The Hamilton product a b of (x, y, z, w) quaternions."""
-    av = ti.Vector([a[0], a[1], a[2]])
-    bv = ti.Vector([b[0], b[1], b[2]])
-    v = a[3] * bv + b[3] * av + av.cross(bv)
-    return ti.Vector([v[0], v[1], v[2], a[3] * b[3] - av.dot(bv)])
+# The Hamilton product and quaternion -> matrix are the colliders' motion's and rotations.py's.
+from ...collision.motion import quat_mul as quat_mul
+from ...rotations import matrix_to_quat as _matrix_to_quat
+from ...rotations import quat_to_matrix as quat_to_matrix
 
 
 @ti.func
@@ -52,42 +48,9 @@ def quat_normalized(q):
     return q / q.norm()
 
 
-def quat_to_matrix(q) -> np.ndarray:
-    """(..., 4) unit quaternions (x, y, z, w) -> (..., 3, 3) rotation matrices."""
-    q = np.asarray(q, dtype=np.float64)
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    r = np.empty(q.shape[:-1] + (3, 3))
-    r[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    r[..., 0, 1] = 2 * (x * y - z * w)
-    r[..., 0, 2] = 2 * (x * z + y * w)
-    r[..., 1, 0] = 2 * (x * y + z * w)
-    r[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    r[..., 1, 2] = 2 * (y * z - x * w)
-    r[..., 2, 0] = 2 * (x * z - y * w)
-    r[..., 2, 1] = 2 * (y * z + x * w)
-    r[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return r
-
-
 def matrix_to_quat(r) -> np.ndarray:
-    """A proper rotation matrix (3,3) -> its unit quaternion (x, y, z, w) with w >= 0 (Shepperd's
-    method: the largest of the four squared components is taken from the diagonal, the rest from it)."""
-    r = np.asarray(r, dtype=np.float64)
-    t = np.trace(r)
-    cand = np.array([r[0, 0], r[1, 1], r[2, 2], t])
-    k = int(np.argmax(cand))
-    if k == 3:
-        w = 0.5 * np.sqrt(1.0 + t)
-        q = np.array([(r[2, 1] - r[1, 2]), (r[0, 2] - r[2, 0]), (r[1, 0] - r[0, 1]), 0.0]) / (4 * w)
-        q[3] = w
-    else:
-        i, j, m = k, (k + 1) % 3, (k + 2) % 3
-        s = 0.5 * np.sqrt(1.0 + r[i, i] - r[j, j] - r[m, m])
-        q = np.empty(4)
-        q[i] = s
-        q[j] = (r[j, i] + r[i, j]) / (4 * s)
-        q[m] = (r[m, i] + r[i, m]) / (4 * s)
-        q[3] = (r[m, j] - r[j, m]) / (4 * s)
+    """A proper rotation matrix (3,3) -> its unit quaternion (x, y, z, w), with w >= 0."""
+    q = _matrix_to_quat(np.asarray(r, dtype=np.float64))
     return q if q[3] >= 0 else -q
 
 
