@@ -16,13 +16,19 @@ import taichi as ti
 
 from ...errors import DivergenceError
 from ...runtime import compile_with, data_oriented
-from .narrow_phase import NO_BODY, body_sdf, obb_overlap, pair_normal, pose, support
+from .gjk import gjk
+from .narrow_phase import NO_BODY, body_sdf, obb_overlap, pose, support
 from .quaternion import world_inverse_inertia
+from .sat import polytope_axis
 
 CASCADE_LEVELS = ("pairs", "spheres", "aabb", "obb", "touching")
 # Sweeps of the collision phase: an impact passes one contact per sweep against the contacts' order
 # (along it, all in one sweep).
 COLLISION_SWEEPS = 4
+# A contact's side: a's point against b (0), b's point against a (1), or the pair's closest features (2:
+# an edge-edge axis, or two round cores' closest points).
+SIDES = 3
+FEATURES = 2
 
 
 @ti.func
@@ -118,7 +124,7 @@ class RigidContacts:
         if slot < self.sizes[0]:
             self.a[slot] = a
             self.b[slot] = b
-            self.key[slot] = ((ti.i64(a) * self.sizes[1] + other) * 2 + side) * self.sizes[2] + point
+            self.key[slot] = ((ti.i64(a) * self.sizes[1] + other) * SIDES + side) * self.sizes[2] + point
             self.point[slot] = p
             self.normal[slot] = n
             self.sep[slot] = sep
@@ -132,25 +138,37 @@ class RigidContacts:
         return h * (state.rigid_v[i].norm() + state.rigid_w[i].norm() * model.rigid_bound[i])
 
     @ti.func
+    def _material(self, model: ti.template(), a, b):
+        """(friction, restitution) of a contact between bodies a and b."""
+        mu = ti.sqrt(model.rigid_friction[a] * model.rigid_friction[b])
+        return mu, ti.max(model.rigid_restitution[a], model.rigid_restitution[b])
+
+    @ti.func
     def _points_in(self, model: ti.template(), state: ti.template(), a, b, side, pair_n, face, margin):
         """Body `a`'s points against body `b`'s signed distance (side 0), or b's against a's (side 1);
         contacts are stored with the lower index first and the normal from b towards a. Two polytopes
-        share one normal, the pair's separating-axis normal `pair_n` (pair_normal), with each point's
-        gap measured along it from `face` (b's extent along it for side 0, a's for side 1): a corner on a
-        corner would otherwise take any face's normal. Round shapes take the signed distance's normal.
-        Where two equal faces lie on each other, both sides find the same corners: the doubled contacts
-        are kept (removing them made a 20-box tower creep 17 mm in 10 s instead of 1.2)."""
+        share one normal, the pair's separating-axis normal `pair_n` (sat.py), with each point's gap
+        measured along it from `face` (b's extent along it for side 0, a's for side 1): a corner on a
+        corner would otherwise take any face's normal. Round shapes take the signed distance's normal;
+        a round shape's point outside a polytope takes its exact distance (gjk.py), not the planes'
+        lower bound. Where two equal faces lie on each other, both sides find the same corners: the
+        doubled contacts are kept (removing them made a 20-box tower creep 17 mm in 10 s instead of
+        1.2)."""
         src, dst = a, b
         if side == 1:
             src, dst = b, a
         xs, rs = state.rigid_x[src], self.rot[src]
         xd, rd = state.rigid_x[dst], self.rot[dst]
-        mu = ti.sqrt(model.rigid_friction[a] * model.rigid_friction[b])
-        e = ti.max(model.rigid_restitution[a], model.rigid_restitution[b])
+        mu, e = self._material(model, a, b)
+        exact = model.rigid_round[src] != 0 and model.rigid_round[dst] == 0
         for k in range(model.rigid_point_start[src], model.rigid_point_start[src + 1]):
             p = xs + rs @ model.rigid_points[k]
             radius = model.rigid_point_radius[k]
             d, n = body_sdf(model, dst, xd, rd, p)
+            if exact and d > 0.0 and d - radius < margin:
+                d, _, closest = gjk(model, -1, p, rs, dst, xd, rd)
+                if d > 0.0:
+                    n = (p - closest) / d
             sep = d - radius
             if sep < margin:
                 normal = n if side == 0 else -n
@@ -160,6 +178,37 @@ class RigidContacts:
                     sep = pair_n.dot(p) - face if side == 0 else face - pair_n.dot(p)
                 if sep < margin:
                     self._add(model, a, b, side, k, point, normal, sep, ti.Vector.zero(float, 3), mu, e, b)
+
+    @ti.func
+    def _polytopes(self, model: ti.template(), state: ti.template(), a, b, margin):
+        """The contacts of two polytopes: the closest points of two edges where an edge-edge axis
+        separates them least, else both bodies' vertices along the face normal that does (sat.py)."""
+        xa, ra = state.rigid_x[a], self.rot[a]
+        xb, rb = state.rigid_x[b], self.rot[b]
+        normal, sep, edge, point = polytope_axis(model, a, xa, ra, b, xb, rb)
+        if edge:
+            if sep < margin:
+                mu, e = self._material(model, a, b)
+                self._add(model, a, b, FEATURES, 0, point, normal, sep, ti.Vector.zero(float, 3), mu, e, b)
+        else:
+            faces = ti.Vector([support(model, b, xb, rb, normal), -support(model, a, xa, ra, -normal)])
+            for side in range(2):
+                self._points_in(model, state, a, b, side, normal, faces[side], margin)
+
+    @ti.func
+    def _cores(self, model: ti.template(), state: ti.template(), a, b, margin):
+        """One contact at the closest points of a's and b's cores (GJK), for a round shape that meets
+        the other body with none of its points: a capsule across another, or across a box's edge."""
+        xa, ra = state.rigid_x[a], self.rot[a]
+        xb, rb = state.rigid_x[b], self.rot[b]
+        dist, pa, pb = gjk(model, a, xa, ra, b, xb, rb)
+        if dist > 0.0:  # cores that meet: deep inside, where the points' contacts hold the pair
+            n = (pa - pb) / dist
+            sep = dist - model.rigid_radius[a] - model.rigid_radius[b]
+            if sep < margin:
+                mu, e = self._material(model, a, b)
+                point = pa - model.rigid_radius[a] * n
+                self._add(model, a, b, FEATURES, 0, point, n, sep, ti.Vector.zero(float, 3), mu, e, b)
 
     # Without Taichi's CFG passes the detection compiles in 0.9 s instead of 3.8 s (prepare: 0.4 instead
     # of 1.2 s), and the dominoes demo's cold start is 3.9 s longer than its warm one instead of 7.8 s;
@@ -201,15 +250,14 @@ class RigidContacts:
                     continue
                 self.cascade_counts[3] += 1
                 before = self.found[None]
-                pair_n = ti.Vector.zero(float, 3)
-                faces = ti.Vector.zero(float, 2)
                 if model.rigid_round[a] == 0 and model.rigid_round[b] == 0:
-                    pair_n = pair_normal(model, a, xa, ra, b, xb, rb)
-                    faces = ti.Vector(
-                        [support(model, b, xb, rb, pair_n), -support(model, a, xa, ra, -pair_n)]
-                    )
-                for side in range(2):
-                    self._points_in(model, state, a, b, side, pair_n, faces[side], margin)
+                    self._polytopes(model, state, a, b, margin)
+                else:
+                    zero = ti.Vector.zero(float, 3)
+                    for side in range(2):
+                        self._points_in(model, state, a, b, side, zero, 0.0, margin)
+                    if self.found[None] == before:
+                        self._cores(model, state, a, b, margin)
                 if self.found[None] > before:
                     self.cascade_counts[4] += 1
             if model.rigid_inv_mass[a] > 0.0:

@@ -17,9 +17,10 @@ def to_principal(points, com, axes) -> np.ndarray:
     return (np.asarray(points, dtype=np.float64) - com) @ axes
 
 
-def hull_planes(vertices: np.ndarray) -> np.ndarray:
-    """(K,4) unit outward normals and offsets (n . x <= d inside) of the convex hull of `vertices`,
-    coplanar faces merged."""
+def hull_features(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The faces and edges of the convex hull of `vertices`, coplanar triangles merged into one face:
+    (K,4) unit outward normals and offsets (n . x <= d inside), and (E,4,3) edges, each its two end
+    points and the normals of the two faces it joins (what the Gauss-map pruning of sat.py reads)."""
     hull = ConvexHull(vertices)
     v, f = hull.vertices, hull.faces
     n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
@@ -28,8 +29,21 @@ def hull_planes(vertices: np.ndarray) -> np.ndarray:
     planes = np.column_stack([n, d])
     scale = max(float(np.abs(v).max()), 1e-12)
     key = np.round(planes / [1.0, 1.0, 1.0, scale], 9)
-    _, first = np.unique(key, axis=0, return_index=True)
-    return planes[np.sort(first)]
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)
+    face_of = np.argsort(order)[inverse.reshape(-1)]  # each triangle's merged face, in first-seen order
+    faces = planes[first[order]]
+    # an edge joins two triangles; it is a hull edge where they lie on different faces
+    ends = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    owner = np.concatenate([np.arange(len(f))] * 3)
+    sort = np.lexsort((ends[:, 1], ends[:, 0]))
+    ends, owner = ends[sort].reshape(-1, 2, 2), owner[sort].reshape(-1, 2)  # closed: two triangles each
+    f0, f1 = face_of[owner[:, 0]], face_of[owner[:, 1]]
+    keep = f0 != f1
+    edges = np.stack(
+        [v[ends[keep, 0, 0]], v[ends[keep, 0, 1]], faces[f0[keep], :3], faces[f1[keep], :3]], axis=1
+    )
+    return faces, edges
 
 
 def contact_geometry(shape, com: np.ndarray, axes: np.ndarray) -> dict:
@@ -47,11 +61,13 @@ def contact_geometry(shape, com: np.ndarray, axes: np.ndarray) -> dict:
             segment=ends,
             radius=r,
             planes=np.zeros((0, 4)),
+            edges=np.zeros((0, 4, 3)),
             bound=float(np.linalg.norm(ends, axis=1).max() + r),
             half_extents=np.abs(ends).max(axis=0) + r,
         )
     vertices, _ = shape.triangles()
     local = to_principal(np.unique(np.asarray(vertices, dtype=np.float64), axis=0), com, axes)
+    planes, edges = hull_features(local)
     return dict(
         points=local,
         point_radius=np.zeros(len(local)),
@@ -59,7 +75,8 @@ def contact_geometry(shape, com: np.ndarray, axes: np.ndarray) -> dict:
         box=isinstance(shape, Box),  # its OBB along the principal axes is the box itself
         segment=np.zeros((2, 3)),
         radius=0.0,
-        planes=hull_planes(local),
+        planes=planes,
+        edges=edges,
         bound=float(np.linalg.norm(local, axis=1).max()),
         half_extents=np.abs(local).max(axis=0),
     )

@@ -80,13 +80,15 @@ class RigidModel:
         """The contact geometry of every body (geometry.py) as fields: its points (rigid_points from
         rigid_point_start[i] to rigid_point_start[i + 1], with rigid_point_radius), its signed distance
         (rigid_round: a core segment rigid_seg0-rigid_seg1 of radius rigid_radius; else the planes
-        rigid_planes from rigid_plane_start[i]; rigid_box: a box, whose OBB is exact), rigid_bound
-        (sphere radius about the com) and rigid_half (OBB half extents along the principal axes), all in
-        the principal frame; and its rigid_friction, rigid_restitution and rigid_damping (linear,
-        angular [1/s])."""
+        rigid_planes from rigid_plane_start[i], and its edges rigid_edges (ends and the normals of the
+        two faces they join) from rigid_edge_start[i]; rigid_box: a box, whose OBB is exact),
+        rigid_bound (sphere radius about the com) and rigid_half (OBB half extents along the principal
+        axes), all in the principal frame; and its rigid_friction, rigid_restitution and rigid_damping
+        (linear, angular [1/s])."""
         geo = [x["geometry"] for x in bodies]
         points = np.concatenate([g["points"] for g in geo])
         planes = np.concatenate([g["planes"] for g in geo])
+        edges = np.concatenate([g["edges"] for g in geo])
         if len(points) > self.MAX_RIGID_POINTS:
             raise ParameterError(
                 f"rigid bodies: {len(points)} contact points (mesh vertices) exceed {self.MAX_RIGID_POINTS}"
@@ -108,6 +110,8 @@ class RigidModel:
         put("rigid_point_radius", np.concatenate([g["point_radius"] for g in geo]), rows(len(points)))
         put("rigid_plane_start", starts("planes"), cap + 1, ti.i32)
         put("rigid_planes", planes, rows(len(planes)), dims=(4,))
+        put("rigid_edge_start", starts("edges"), cap + 1, ti.i32)
+        put("rigid_edges", np.concatenate([g["edges"] for g in geo]), rows(len(edges)), dims=(4, 3))
         put("rigid_round", [int(g["round"]) for g in geo], cap, ti.i32)
         put("rigid_box", [int(g["box"]) for g in geo], cap, ti.i32)
         put("rigid_seg0", [g["segment"][0] for g in geo], cap, dims=(3,))

@@ -1,16 +1,17 @@
 """Rigid contact detection: the course's cascade of bounding volumes, then contact points.
 
 Every pair of bodies goes through cheaper tests first and the exact one last (the collision chapter's
-"spheres within AABB within OBB"): bounding spheres about the centres of mass, world AABBs (each body's
-OBB projected on the world axes), the OBB-OBB separating-axis test on the 15 axes of Gottschalk, Lin &
-Manocha ("OBBTree", SIGGRAPH 1996, sec. 4), and only then the contact points: each body's points
-(vertices; a round shape's core points with its radius) against the other's signed distance
-(geometry.py), both ways. A body's points are also tested against every collider's signed distance
-(`Collider.contact`). How many pairs each level passes is counted (`RigidContacts.cascade`): the cost
-model T = N_v C_v + N_p C_p of the course, measured.
+"spheres within AABB within OBB"): bounding spheres about the centres of mass, world AABBs (each body's OBB
+projected on the world axes), the OBB-OBB separating-axis test on the 15 axes of Gottschalk, Lin & Manocha
+("OBBTree", SIGGRAPH 1996, sec. 4), and only then the exact test and its contact points: two polytopes'
+separating axis (sat.py), then each body's points (vertices; a round shape's core points with its radius)
+against the other's signed distance (geometry.py), both ways; where a round shape meets something with none
+of its points, the closest points of the two cores (gjk.py). A body's points are also tested against every
+collider's signed distance (`Collider.contact`). How many pairs each level passes is counted
+(`RigidContacts.cascade`): the cost model T = N_v C_v + N_p C_p of the course, measured.
 
-Contacts within the margin are kept (speculative contacts: the solver lets such a gap close, no more),
-keyed by (body a, body b or collider, side, point) so that the next step can find its impulse again (warm
+Contacts within the margin are kept (speculative contacts: the solver lets such a gap close, no more), keyed
+by (body a, body b or collider, side, point) so that the next step can find its impulse again (warm
 starting); the keys are made in increasing order."""
 
 import taichi as ti
@@ -99,51 +100,3 @@ def support(model: ti.template(), i, x, r, u):
 def separation(model: ti.template(), a, xa, ra, b, xb, rb, u):
     """How far body a lies beyond body b along u (negative: their overlap along u)."""
     return -support(model, a, xa, ra, -u) - support(model, b, xb, rb, u)
-
-
-# A face of a, or an edge-edge axis, replaces the best axis so far only when clearly better: resting
-# contacts then keep one normal from step to step instead of flickering between near-ties (Jolt and Box2D
-# bias their separating-axis choices the same way).
-FACE_BIAS = 1e-5  # [m]
-EDGE_BIAS = 1e-3  # [m]
-
-
-@ti.func
-def pair_normal(model: ti.template(), a, xa, ra, b, xb, rb):
-    """The contact normal (from b towards a) of two polytopes: the axis of least overlap among b's face
-    normals, a's, and the cross products of their OBB axes (a separating-axis search: Gottschalk et al.'s
-    axes for boxes, face normals for hulls). One loop over the candidate axes, so that the search is
-    compiled once."""
-    best = -1e30
-    normal = ti.Vector([0.0, 1.0, 0.0], float)
-    b0, a0 = model.rigid_plane_start[b], model.rigid_plane_start[a]
-    nb, na = model.rigid_plane_start[b + 1] - b0, model.rigid_plane_start[a + 1] - a0
-    for m in range(nb + na + 9):
-        u = ti.Vector.zero(float, 3)
-        bias = ti.cast(0.0, float)
-        if m < nb + na:
-            # one read at a selected index: Taichi evaluates both sides of a conditional expression, and
-            # the unselected read would fall past the plane array for the last body
-            plane = model.rigid_planes[b0 + m if m < nb else a0 + m - nb]
-            u = ti.Vector([plane[0], plane[1], plane[2]])
-            u = rb @ u if m < nb else -(ra @ u)
-            bias = 0.0 if m < nb else FACE_BIAS
-        else:
-            e = m - nb - na
-            u = (ra @ _unit(e // 3)).cross(rb @ _unit(e % 3))
-            bias = EDGE_BIAS
-            length = u.norm()
-            u = u / length if length > 1e-6 else ti.Vector.zero(float, 3)
-            if u.dot(xa - xb) < 0.0:
-                u = -u
-        if u.norm_sqr() > 0.0:
-            s = separation(model, a, xa, ra, b, xb, rb, u)
-            if s > best + bias:
-                best, normal = s, u
-    return normal
-
-
-@ti.func
-def _unit(i):
-    """The unit vector along axis i (0, 1, 2) chosen at run time."""
-    return ti.Vector([1.0 if i == 0 else 0.0, 1.0 if i == 1 else 0.0, 1.0 if i == 2 else 0.0])
