@@ -6,6 +6,7 @@ inertia tensor about the centre of mass, in closed form:
 - sphere, box: the textbook integrals;
 - capsule (a cylinder along the shape's y axis with two hemispherical caps): the cylinder plus the two
   caps moved by the parallel-axis theorem (each cap's centre of mass is 3r/8 from its flat face);
+- compound: the sum of its parts, each turned and moved (R I R^T, then the parallel-axis theorem);
 - convex hull and closed triangle mesh: the volume integrals of 1, x, y, z, x^2, ..., zx turned into
   sums over the surface triangles by the divergence theorem (Mirtich, "Fast and Accurate Computation of
   Polyhedral Mass Properties", JGT 1996; in the per-triangle form of Eberly, "Polyhedral Mass
@@ -20,6 +21,7 @@ import numpy as np
 
 from . import validate
 from .errors import ParameterError
+from .rotations import quat_to_matrix
 
 
 @dataclass(frozen=True)
@@ -198,6 +200,64 @@ class ConvexHull(Mesh):
         super().__init__(v, f)
 
 
+MAX_COMPOUND_PARTS = 4096
+
+
+class Compound(Shape):
+    """Several convex shapes (Sphere, Box, Capsule, ConvexHull) held rigidly together: `parts` is a list
+    of (shape, position (3,) [m], orientation (x, y, z, w)) placing each part in the compound's frame, as
+    Bullet's compound shape and MuJoCo's geoms of one body. Each part collides as itself (a non-convex
+    body made of convex parts); the parts may overlap, and their overlap counts twice in the mass (as in
+    Bullet, PhysX and MuJoCo, which sum their parts)."""
+
+    kind = "compound"
+
+    def __init__(self, parts):
+        if isinstance(parts, (str, bytes)) or not hasattr(parts, "__len__"):
+            raise ParameterError(f"parts must be a list of (shape, position, orientation), got {parts!r}")
+        if not 1 <= len(parts) <= MAX_COMPOUND_PARTS:
+            raise ParameterError(f"parts must hold 1..{MAX_COMPOUND_PARTS} parts, got {len(parts)}")
+        placed = []
+        for k, part in enumerate(parts):
+            if not isinstance(part, (tuple, list)) or len(part) != 3:
+                raise ParameterError(f"parts[{k}] must be (shape, position, orientation), got {part!r}")
+            shape, position, orientation = part
+            if not isinstance(shape, (Sphere, Box, Capsule, ConvexHull)):
+                raise ParameterError(
+                    f"parts[{k}] must be a Sphere, Box, Capsule or ConvexHull (a convex part), got {shape!r}"
+                )
+            q = validate.finite_array(f"parts[{k}] orientation", np.asarray(orientation, dtype=np.float64))
+            if q.shape != (4,) or not 0.9 < np.linalg.norm(q) < 1.1:
+                raise ParameterError(f"parts[{k}] orientation must be a unit quaternion (x, y, z, w): {q}")
+            t = np.asarray(validate.vec3(f"parts[{k}] position", position), dtype=np.float64)
+            placed.append((shape, t, quat_to_matrix(q / np.linalg.norm(q))))
+        self.parts = tuple(placed)
+
+    def mass_properties(self, density: float) -> MassProperties:
+        props = [(shape.mass_properties(density), t, r) for shape, t, r in self.parts]
+        m = sum(p.mass for p, _, _ in props)
+        c = sum(p.mass * (t + r @ p.com) for p, t, r in props) / m
+        inertia = np.zeros((3, 3))
+        for p, t, r in props:
+            d = t + r @ p.com - c
+            # each part's inertia turned into the compound's axes, then moved to its centre of mass
+            inertia += r @ p.inertia @ r.T + p.mass * (d @ d * np.eye(3) - np.outer(d, d))
+        return MassProperties(float(m), c, inertia)
+
+    def triangles(self):
+        vertices, faces, start = [], [], 0
+        for shape, t, r in self.parts:
+            v, f = shape.triangles()
+            vertices.append(np.asarray(v) @ r.T + t)
+            faces.append(np.asarray(f) + start)
+            start += len(v)
+        return np.vstack(vertices), np.vstack(faces)
+
+    def settings(self) -> dict:
+        parts = [{**p.settings(), "position": t.tolist(), "rotation": r.tolist()} for p, t, r in self.parts]
+        return {"shape": "compound", "parts": parts}
+
+
 def _check_closed(faces: np.ndarray) -> None:
     """Each undirected edge in exactly two faces, once in each direction (closed and oriented)."""
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
@@ -273,4 +333,4 @@ def uv_sphere(center, radius: float, *, rings: int = 24, segments: int = 48):
     return v, np.vstack([top, *quads, bottom])
 
 
-__all__ = ["Box", "Capsule", "ConvexHull", "MassProperties", "Mesh", "Shape", "Sphere"]
+__all__ = ["Box", "Capsule", "Compound", "ConvexHull", "MassProperties", "Mesh", "Shape", "Sphere"]

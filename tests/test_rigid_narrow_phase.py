@@ -59,15 +59,15 @@ def _query(
         rot_a = ti.Matrix([[ra[t, i, j] for j in range(3)] for i in range(3)], float)
         rot_b = ti.Matrix([[rb[t, i, j] for j in range(3)] for i in range(3)], float)
         dist, pa, pb = gjk(model, a, pos_a, rot_a, b, pos_b, rot_b)
-        out[t, 0] = dist - model.rigid_radius[a] - model.rigid_radius[b]
+        out[t, 0] = dist - model.geom_radius[a] - model.geom_radius[b]
         out[t, 1] = 0.0
         out[t, 2] = 0.0
-        if model.rigid_round[a] == 0:
-            if model.rigid_round[b] == 0:
+        if model.geom_round[a] == 0:
+            if model.geom_round[b] == 0:
                 normal, s, edge, _p = polytope_axis(model, a, pos_a, rot_a, b, pos_b, rot_b)
                 face_s, _n = face_axes(model, a, pos_a, rot_a, b, pos_b, rot_b)
                 edge_s = hull_edges(model, a, pos_a, rot_a, b, pos_b, rot_b)[0]
-                if model.rigid_box[a] and model.rigid_box[b]:
+                if model.geom_box[a] and model.geom_box[b]:
                     edge_s = box_edges(model, a, pos_a, rot_a, b, pos_b, rot_b)[0]
                 out[t, 1] = s
                 out[t, 2] = face_s
@@ -95,13 +95,13 @@ def fcl_object(model, i, x, r):
     a hull as fcl's Convex."""
     kind = model.rigid_shapes[i].kind
     if kind == "box":
-        half = model.rigid_half.to_numpy()[i]
+        half = model.geom_half.to_numpy()[i]
         return fcl.CollisionObject(fcl.Box(*(2 * half)), fcl.Transform(r, x))
     if kind == "sphere":
         return fcl.CollisionObject(fcl.Sphere(model.rigid_shapes[i].radius), fcl.Transform(r, x))
     if kind == "capsule":
         shape = model.rigid_shapes[i]
-        s0, s1 = model.rigid_seg0.to_numpy()[i], model.rigid_seg1.to_numpy()[i]
+        s0, s1 = model.geom_seg0.to_numpy()[i], model.geom_seg1.to_numpy()[i]
         axis = (s1 - s0) / np.linalg.norm(s1 - s0)  # in the principal frame; fcl's capsule runs along z
         turn = np.column_stack([*_complete(axis), axis])
         center = x + r @ (0.5 * (s0 + s1))
@@ -150,9 +150,9 @@ def random_pairs():
     ref = np.array([fcl_query(fcl_object(model, a, x, r), fcl_object(model, b, y, s))
                     for a, b, x, r, y, s in zip(ia, ib, xa, ra, xb, rb, strict=True)])  # fmt: skip
     geometry = dict(
-        round=model.rigid_round.to_numpy()[: len(NAMES)] != 0,
-        radius=model.rigid_radius.to_numpy()[: len(NAMES)],
-        segment=np.stack([model.rigid_seg0.to_numpy(), model.rigid_seg1.to_numpy()], axis=1)[: len(NAMES)],
+        round=model.geom_round.to_numpy()[: len(NAMES)] != 0,
+        radius=model.geom_radius.to_numpy()[: len(NAMES)],
+        segment=np.stack([model.geom_seg0.to_numpy(), model.geom_seg1.to_numpy()], axis=1)[: len(NAMES)],
         principal=[principal_vertices(model, i) for i in range(len(NAMES))],
     )
     met = ref[:, 0].astype(bool)

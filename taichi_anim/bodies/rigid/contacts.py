@@ -17,7 +17,7 @@ import taichi as ti
 from ...errors import DivergenceError
 from ...runtime import compile_with, data_oriented
 from .gjk import gjk
-from .narrow_phase import NO_BODY, body_sdf, obb_overlap, pose, support
+from .narrow_phase import NO_BODY, geom_sdf, obb_overlap, pose, support
 from .quaternion import world_inverse_inertia
 from .sat import polytope_axis
 
@@ -96,9 +96,8 @@ class RigidContacts:
         self.prev_count[None] = 0
         # read at run time (not compile-time constants): a scene of another size compiles nothing new
         self.sizes = make(self, "rc_sizes", ti.i64, 3)
-        self.sizes.from_numpy(
-            np.array([capacity, model.rigid_count + len(self.colliders), max(model.rigid_point_count, 1)])
-        )
+        others = model.rigid_geom_count + len(self.colliders)
+        self.sizes.from_numpy(np.array([capacity, others, max(model.rigid_point_count, 1)]))
 
     def cascade(self) -> dict:
         """Pairs of bodies that reached each level of the cascade in the last step."""
@@ -118,13 +117,15 @@ class RigidContacts:
     # -- detection --------------------------------------------------------------------------------------
 
     @ti.func
-    def _add(self, model: ti.template(), a, b, side, point, p, n, sep, vs, mu, e, other):
+    def _add(self, a, b, geom, other, side, point, p, n, sep, vs, mu, e):
+        """Contact of body a (its geom `geom`) with body b (NO_BODY: a collider), keyed by (geom, the
+        other geom or collider slot `other`, side, point) for the next step's warm start."""
         slot = self.found[None]
         self.found[None] += 1
         if slot < self.sizes[0]:
             self.a[slot] = a
             self.b[slot] = b
-            self.key[slot] = ((ti.i64(a) * self.sizes[1] + other) * SIDES + side) * self.sizes[2] + point
+            self.key[slot] = ((ti.i64(geom) * self.sizes[1] + other) * SIDES + side) * self.sizes[2] + point
             self.point[slot] = p
             self.normal[slot] = n
             self.sep[slot] = sep
@@ -144,27 +145,29 @@ class RigidContacts:
         return mu, ti.max(model.rigid_restitution[a], model.rigid_restitution[b])
 
     @ti.func
-    def _points_in(self, model: ti.template(), state: ti.template(), a, b, side, pair_n, face, margin):
-        """Body `a`'s points against body `b`'s signed distance (side 0), or b's against a's (side 1);
-        contacts are stored with the lower index first and the normal from b towards a. Two polytopes
-        share one normal, the pair's separating-axis normal `pair_n` (sat.py), with each point's gap
-        measured along it from `face` (b's extent along it for side 0, a's for side 1): a corner on a
-        corner would otherwise take any face's normal. Round shapes take the signed distance's normal;
-        a round shape's point outside a polytope takes its exact distance (gjk.py), not the planes'
-        lower bound. Where two equal faces lie on each other, both sides find the same corners: the
-        doubled contacts are kept (removing them made a 20-box tower creep 17 mm in 10 s instead of
-        1.2)."""
-        src, dst = a, b
+    def _points_in(self, model: ti.template(), pair, poses, side, pair_n, face, margin):
+        """Geom ga's points against geom gb's signed distance (side 0), or gb's against ga's (side 1), for
+        pair = (body a, body b, ga, gb) and poses = (origin, rotation) of ga and of gb; contacts are
+        stored with the lower body first and the normal from b towards a. Two polytopes share one normal,
+        the pair's separating-axis normal `pair_n` (sat.py), with each point's gap measured along it from
+        `face` (gb's extent along it for side 0, ga's for side 1): a corner on a corner would otherwise
+        take any face's normal. Round shapes take the signed distance's normal; a round shape's point
+        outside a polytope takes its exact distance (gjk.py), not the planes' lower bound. Where two equal
+        faces lie on each other, both sides find the same corners: the doubled contacts are kept
+        (removing them made a 20-box tower creep 17 mm in 10 s instead of 1.2)."""
+        a, b, ga, gb = pair
+        xa, ra, xb, rb = poses
+        src, dst = ga, gb
+        xs, rs, xd, rd = xa, ra, xb, rb
         if side == 1:
-            src, dst = b, a
-        xs, rs = state.rigid_x[src], self.rot[src]
-        xd, rd = state.rigid_x[dst], self.rot[dst]
+            src, dst = gb, ga
+            xs, rs, xd, rd = xb, rb, xa, ra
         mu, e = self._material(model, a, b)
-        exact = model.rigid_round[src] != 0 and model.rigid_round[dst] == 0
-        for k in range(model.rigid_point_start[src], model.rigid_point_start[src + 1]):
-            p = xs + rs @ model.rigid_points[k]
-            radius = model.rigid_point_radius[k]
-            d, n = body_sdf(model, dst, xd, rd, p)
+        exact = model.geom_round[src] != 0 and model.geom_round[dst] == 0
+        for k in range(model.geom_point_start[src], model.geom_point_start[src + 1]):
+            p = xs + rs @ model.geom_points[k]
+            radius = model.geom_point_radius[k]
+            d, n = geom_sdf(model, dst, xd, rd, p)
             if exact and d > 0.0 and d - radius < margin:
                 d, _, closest = gjk(model, -1, p, rs, dst, xd, rd)
                 if d > 0.0:
@@ -177,38 +180,59 @@ class RigidContacts:
                     normal = pair_n
                     sep = pair_n.dot(p) - face if side == 0 else face - pair_n.dot(p)
                 if sep < margin:
-                    self._add(model, a, b, side, k, point, normal, sep, ti.Vector.zero(float, 3), mu, e, b)
+                    zero = ti.Vector.zero(float, 3)
+                    self._add(a, b, ga, gb, side, k, point, normal, sep, zero, mu, e)
 
     @ti.func
-    def _polytopes(self, model: ti.template(), state: ti.template(), a, b, margin):
+    def _polytopes(self, model: ti.template(), pair, poses, margin):
         """The contacts of two polytopes: the closest points of two edges where an edge-edge axis
-        separates them least, else both bodies' vertices along the face normal that does (sat.py)."""
-        xa, ra = state.rigid_x[a], self.rot[a]
-        xb, rb = state.rigid_x[b], self.rot[b]
-        normal, sep, edge, point = polytope_axis(model, a, xa, ra, b, xb, rb)
+        separates them least, else both geoms' vertices along the face normal that does (sat.py)."""
+        a, b, ga, gb = pair
+        xa, ra, xb, rb = poses
+        normal, sep, edge, point = polytope_axis(model, ga, xa, ra, gb, xb, rb)
         if edge:
             if sep < margin:
                 mu, e = self._material(model, a, b)
-                self._add(model, a, b, FEATURES, 0, point, normal, sep, ti.Vector.zero(float, 3), mu, e, b)
+                self._add(a, b, ga, gb, FEATURES, 0, point, normal, sep, ti.Vector.zero(float, 3), mu, e)
         else:
-            faces = ti.Vector([support(model, b, xb, rb, normal), -support(model, a, xa, ra, -normal)])
+            faces = ti.Vector([support(model, gb, xb, rb, normal), -support(model, ga, xa, ra, -normal)])
             for side in range(2):
-                self._points_in(model, state, a, b, side, normal, faces[side], margin)
+                self._points_in(model, pair, poses, side, normal, faces[side], margin)
 
     @ti.func
-    def _cores(self, model: ti.template(), state: ti.template(), a, b, margin):
-        """One contact at the closest points of a's and b's cores (GJK), for a round shape that meets
-        the other body with none of its points: a capsule across another, or across a box's edge."""
-        xa, ra = state.rigid_x[a], self.rot[a]
-        xb, rb = state.rigid_x[b], self.rot[b]
-        dist, pa, pb = gjk(model, a, xa, ra, b, xb, rb)
+    def _cores(self, model: ti.template(), pair, poses, margin):
+        """One contact at the closest points of two geoms' cores (GJK), for a round shape that meets the
+        other with none of its points: a capsule across another, or across a box's edge."""
+        a, b, ga, gb = pair
+        xa, ra, xb, rb = poses
+        dist, pa, pb = gjk(model, ga, xa, ra, gb, xb, rb)
         if dist > 0.0:  # cores that meet: deep inside, where the points' contacts hold the pair
             n = (pa - pb) / dist
-            sep = dist - model.rigid_radius[a] - model.rigid_radius[b]
+            sep = dist - model.geom_radius[ga] - model.geom_radius[gb]
             if sep < margin:
                 mu, e = self._material(model, a, b)
-                point = pa - model.rigid_radius[a] * n
-                self._add(model, a, b, FEATURES, 0, point, n, sep, ti.Vector.zero(float, 3), mu, e, b)
+                point = pa - model.geom_radius[ga] * n
+                self._add(a, b, ga, gb, FEATURES, 0, point, n, sep, ti.Vector.zero(float, 3), mu, e)
+
+    @ti.func
+    def _geoms(self, model: ti.template(), a, b, xa, ra, xb, rb, margin):
+        """The contacts of bodies a and b, part by part (one pair for simple shapes)."""
+        for ga in range(model.rigid_geom_start[a], model.rigid_geom_start[a + 1]):
+            pa, qa = model.geom_pose(ga, xa, ra)
+            for gb in range(model.rigid_geom_start[b], model.rigid_geom_start[b + 1]):
+                pb, qb = model.geom_pose(gb, xb, rb)
+                if (pa - pb).norm() <= model.geom_bound[ga] + model.geom_bound[gb] + margin:
+                    pair = (a, b, ga, gb)
+                    poses = (pa, qa, pb, qb)
+                    before = self.found[None]
+                    if model.geom_round[ga] == 0 and model.geom_round[gb] == 0:
+                        self._polytopes(model, pair, poses, margin)
+                    else:
+                        zero = ti.Vector.zero(float, 3)
+                        for side in range(2):
+                            self._points_in(model, pair, poses, side, zero, 0.0, margin)
+                        if self.found[None] == before:
+                            self._cores(model, pair, poses, margin)
 
     # Without Taichi's CFG passes the detection compiles in 0.9 s instead of 3.8 s (prepare: 0.4 instead
     # of 1.2 s), and the dominoes demo's cold start is 3.9 s longer than its warm one instead of 7.8 s;
@@ -250,14 +274,7 @@ class RigidContacts:
                     continue
                 self.cascade_counts[3] += 1
                 before = self.found[None]
-                if model.rigid_round[a] == 0 and model.rigid_round[b] == 0:
-                    self._polytopes(model, state, a, b, margin)
-                else:
-                    zero = ti.Vector.zero(float, 3)
-                    for side in range(2):
-                        self._points_in(model, state, a, b, side, zero, 0.0, margin)
-                    if self.found[None] == before:
-                        self._cores(model, state, a, b, margin)
+                self._geoms(model, a, b, xa, ra, xb, rb, margin)
                 if self.found[None] > before:
                     self.cascade_counts[4] += 1
             if model.rigid_inv_mass[a] > 0.0:
@@ -269,35 +286,26 @@ class RigidContacts:
         for c, collider in ti.static(tuple(enumerate(self.colliders))):
             mu = ti.sqrt(model.rigid_friction[a] * collider.friction)
             e = ti.max(model.rigid_restitution[a], collider.restitution)
-            for k in range(model.rigid_point_start[a], model.rigid_point_start[a + 1]):
-                p = xa + ra @ model.rigid_points[k]
-                radius = model.rigid_point_radius[k]
-                d, n, vs = collider.contact(p, t)
-                # A mesh collider answers only within its reach (farther points read as `reach`): its
-                # contacts are found from there, however fast the body.
-                if d >= ti.static(getattr(collider, "reach", 1e30) - 1e-9):
-                    continue
-                if ti.static(collider.shell):
-                    # An open surface has no inside: the body is on its centre's side, and a point of it
-                    # past the sheet is penetrating (not outside on the far side, to be pushed through).
-                    if n.dot(xa - p) < 0.0:
-                        n, d = -n, -d
-                sep = d - radius
-                if sep < margin:
-                    self._add(
-                        model,
-                        a,
-                        NO_BODY,
-                        0,
-                        k,
-                        p - radius * n,
-                        n,
-                        sep,
-                        vs,
-                        mu,
-                        e,
-                        ti.i32(self.sizes[1]) - ti.static(len(self.colliders)) + c,  # no size baked in
-                    )
+            slot = ti.i32(self.sizes[1]) - ti.static(len(self.colliders)) + c  # no size baked in
+            for g in range(model.rigid_geom_start[a], model.rigid_geom_start[a + 1]):
+                xg, rg = model.geom_pose(g, xa, ra)
+                for k in range(model.geom_point_start[g], model.geom_point_start[g + 1]):
+                    p = xg + rg @ model.geom_points[k]
+                    radius = model.geom_point_radius[k]
+                    d, n, vs = collider.contact(p, t)
+                    # A mesh collider answers only within its reach (farther points read as `reach`): its
+                    # contacts are found from there, however fast the body.
+                    if d >= ti.static(getattr(collider, "reach", 1e30) - 1e-9):
+                        continue
+                    if ti.static(collider.shell):
+                        # An open surface has no inside: the body is on its centre's side, and a point of
+                        # it past the sheet is penetrating (not outside on the far side, to be pushed
+                        # through).
+                        if n.dot(xa - p) < 0.0:
+                            n, d = -n, -d
+                    sep = d - radius
+                    if sep < margin:
+                        self._add(a, NO_BODY, g, slot, 0, k, p - radius * n, n, sep, vs, mu, e)
 
     # -- the solve --------------------------------------------------------------------------------------
 
@@ -477,11 +485,23 @@ class RigidContacts:
 
     @ti.func
     def _store(self):
-        """Keep this step's impulses (world vectors) under their keys for the next step's warm start."""
+        """Keep this step's impulses (world vectors) under their keys, sorted for the next step's binary
+        search: by insertion, as the contacts come nearly sorted (in order but for compounds' parts).
+        Serial: the caller configures the loop so."""
         for c in range(self.count[None]):
             lam = self.impulse[c]
-            self.prev_key[c] = self.key[c]
-            self.prev_impulse[c] = lam[0] * self.normal[c] + lam[1] * self.t1[c] + lam[2] * self.t2[c]
+            key = self.key[c]
+            impulse = lam[0] * self.normal[c] + lam[1] * self.t1[c] + lam[2] * self.t2[c]
+            slot = c
+            while slot > 0:
+                if self.prev_key[slot - 1] > key:
+                    self.prev_key[slot] = self.prev_key[slot - 1]
+                    self.prev_impulse[slot] = self.prev_impulse[slot - 1]
+                    slot -= 1
+                else:
+                    break
+            self.prev_key[slot] = key
+            self.prev_impulse[slot] = impulse
         self.prev_count[None] = self.count[None]
 
 

@@ -1,5 +1,6 @@
-"""What rigid contacts read of each body's shape, in its principal frame (centre of mass at the origin):
-its contact points (a polytope's vertices; a round shape's core segment ends, with its radius), its
+"""What rigid contacts read of each body's shape, in its principal frame (centre of mass at the origin),
+per convex part (a geom: the shape itself, or each part of a compound, placed in that frame): its
+contact points (a polytope's vertices; a round shape's core segment ends, with its radius), its
 signed distance (a round shape's: distance to the core segment minus the radius; a polytope's: the
 largest of its face planes' distances, exact inside and up to the face's edge outside, a lower bound
 beyond), its bounding sphere and its oriented bounding box. A triangle mesh body's signed distance is its
@@ -9,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...shapes import Box, Capsule, ConvexHull, Sphere
+from ...shapes import Box, Capsule, Compound, ConvexHull, Sphere
 
 
 def to_principal(points, com, axes) -> np.ndarray:
@@ -46,8 +47,8 @@ def hull_features(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return faces, edges
 
 
-def contact_geometry(shape, com: np.ndarray, axes: np.ndarray) -> dict:
-    """The arrays rigid contacts read for one body (see the module's docstring)."""
+def _convex_geometry(shape, com: np.ndarray, axes: np.ndarray) -> dict:
+    """One convex part's arrays, in the frame axes^T (p - com) of its shape's points."""
     if isinstance(shape, (Sphere, Capsule)):
         half = shape.half_length if isinstance(shape, Capsule) else 0.0
         ends = to_principal([[0.0, -half, 0.0], [0.0, half, 0.0]], com, axes)
@@ -62,7 +63,6 @@ def contact_geometry(shape, com: np.ndarray, axes: np.ndarray) -> dict:
             radius=r,
             planes=np.zeros((0, 4)),
             edges=np.zeros((0, 4, 3)),
-            bound=float(np.linalg.norm(ends, axis=1).max() + r),
             half_extents=np.abs(ends).max(axis=0) + r,
         )
     vertices, _ = shape.triangles()
@@ -77,6 +77,30 @@ def contact_geometry(shape, com: np.ndarray, axes: np.ndarray) -> dict:
         radius=0.0,
         planes=planes,
         edges=edges,
-        bound=float(np.linalg.norm(local, axis=1).max()),
         half_extents=np.abs(local).max(axis=0),
     )
+
+
+def contact_geometry(shape, com: np.ndarray, axes: np.ndarray) -> dict:
+    """The arrays rigid contacts read for one body (see the module's docstring): its convex parts
+    ("geoms", one for a simple shape, in the principal frame; a compound's, each in its own frame at an
+    offset and rotation in the principal frame) and the body's bounding sphere and OBB about its centre of
+    mass, along its principal axes."""
+    if isinstance(shape, Compound):
+        geoms = []
+        for part, t, r in shape.parts:
+            # each part's frame at its own centre of mass: inside it, as the separating-axis test's
+            # orientation of edge axes needs (sat.py)
+            centre = part.mass_properties(1.0).com
+            geom = _convex_geometry(part, centre, np.eye(3))
+            geom.update(offset=axes.T @ (t + r @ centre - com), rotation=axes.T @ r)
+            geoms.append(geom)
+    else:
+        geoms = [dict(_convex_geometry(shape, com, axes), offset=np.zeros(3), rotation=np.eye(3))]
+    reach, extent = 0.0, np.zeros(3)
+    for g in geoms:
+        g["bound"] = float(np.linalg.norm(g["points"], axis=1).max() + g["radius"])
+        placed = g["points"] @ g["rotation"].T + g["offset"]
+        reach = max(reach, float(np.linalg.norm(placed, axis=1).max() + g["radius"]))
+        extent = np.maximum(extent, np.abs(placed).max(axis=0) + g["radius"])
+    return dict(geoms=geoms, bound=reach, half_extents=extent)

@@ -19,17 +19,17 @@ GJK_TOLERANCE = 1e-9
 
 @ti.func
 def core_support(model: ti.template(), i, x, r, u):
-    """The point of body i's core (com x, rotation r) farthest along u; for i < 0, the point x."""
+    """The point of geom i's core (its frame at x, rotation r) farthest along u; for i < 0, the point x."""
     best_p = x
     if i >= 0:
-        if model.rigid_box[i]:
+        if model.geom_box[i]:
             local = r.transpose() @ u
             corner = ti.Vector([1.0 if local[k] >= 0.0 else -1.0 for k in ti.static(range(3))])
-            best_p = x + r @ (corner * model.rigid_half[i])
+            best_p = x + r @ (corner * model.geom_half[i])
         else:
             best = -1e30
-            for k in range(model.rigid_point_start[i], model.rigid_point_start[i + 1]):
-                p = x + r @ model.rigid_points[k]
+            for k in range(model.geom_point_start[i], model.geom_point_start[i + 1]):
+                p = x + r @ model.geom_points[k]
                 if u.dot(p) > best:
                     best, best_p = u.dot(p), p
     return best_p
@@ -127,8 +127,8 @@ def _simplex_weights(w, n):
 
 @ti.func
 def gjk(model: ti.template(), a, xa, ra, b, xb, rb):
-    """(distance [m] between the cores of bodies a and b (0 where they meet), the closest point on a's
-    core, the closest point on b's). a < 0: the point xa stands for body a."""
+    """(distance [m] between the cores of geoms a and b (0 where they meet), the closest point on a's
+    core, the closest point on b's). a < 0: the point xa stands for geom a."""
     sa_ = ti.Matrix.zero(float, 4, 3)  # the simplex's points as support points of a and of b
     sb_ = ti.Matrix.zero(float, 4, 3)
     weights = ti.Vector([1.0, 0.0, 0.0, 0.0])

@@ -77,15 +77,18 @@ class RigidModel:
             return self.rigid_count
 
     def _init_rigid_geometry(self, bodies) -> None:
-        """The contact geometry of every body (geometry.py) as fields: its points (rigid_points from
-        rigid_point_start[i] to rigid_point_start[i + 1], with rigid_point_radius), its signed distance
-        (rigid_round: a core segment rigid_seg0-rigid_seg1 of radius rigid_radius; else the planes
-        rigid_planes from rigid_plane_start[i], and its edges rigid_edges (ends and the normals of the
-        two faces they join) from rigid_edge_start[i]; rigid_box: a box, whose OBB is exact),
-        rigid_bound (sphere radius about the com) and rigid_half (OBB half extents along the principal
-        axes), all in the principal frame; and its rigid_friction, rigid_restitution and rigid_damping
-        (linear, angular [1/s])."""
-        geo = [x["geometry"] for x in bodies]
+        """The contact geometry of every body (geometry.py) as fields. Per body: its convex parts (geoms)
+        rigid_geom_start[i] to rigid_geom_start[i + 1], rigid_bound (sphere radius about the com) and
+        rigid_half (OBB half extents along the principal axes), rigid_friction, rigid_restitution and
+        rigid_damping (linear, angular [1/s]). Per geom g: its body geom_body, its placement in the body's
+        principal frame geom_offset and geom_rot, and in its own frame its points (geom_points from
+        geom_point_start[g] to geom_point_start[g + 1], with geom_point_radius), its signed distance
+        (geom_round: a core segment geom_seg0-geom_seg1 of radius geom_radius; else the planes geom_planes
+        from geom_plane_start[g], and its edges geom_edges (ends and the normals of the two faces they
+        join) from geom_edge_start[g]; geom_box: a box of half extents geom_half), and geom_bound (sphere
+        radius about its origin)."""
+        geo = [g for x in bodies for g in x["geometry"]["geoms"]]
+        owner = [i for i, x in enumerate(bodies) for _ in x["geometry"]["geoms"]]
         points = np.concatenate([g["points"] for g in geo])
         planes = np.concatenate([g["planes"] for g in geo])
         edges = np.concatenate([g["edges"] for g in geo])
@@ -94,6 +97,7 @@ class RigidModel:
                 f"rigid bodies: {len(points)} contact points (mesh vertices) exceed {self.MAX_RIGID_POINTS}"
             )
         self.rigid_point_count = len(points)
+        self.rigid_geom_count = len(geo)
         rows = capacity.bucket if self.size_buckets else (lambda n: max(n, 1))
         starts = lambda key: np.concatenate([[0], np.cumsum([len(g[key]) for g in geo])]).astype(np.int32)
 
@@ -105,24 +109,37 @@ class RigidModel:
             setattr(self, name, f)
 
         cap = self.rigid_capacity
-        put("rigid_point_start", starts("points"), cap + 1, ti.i32)
-        put("rigid_points", points, rows(len(points)), dims=(3,))
-        put("rigid_point_radius", np.concatenate([g["point_radius"] for g in geo]), rows(len(points)))
-        put("rigid_plane_start", starts("planes"), cap + 1, ti.i32)
-        put("rigid_planes", planes, rows(len(planes)), dims=(4,))
-        put("rigid_edge_start", starts("edges"), cap + 1, ti.i32)
-        put("rigid_edges", np.concatenate([g["edges"] for g in geo]), rows(len(edges)), dims=(4, 3))
-        put("rigid_round", [int(g["round"]) for g in geo], cap, ti.i32)
-        put("rigid_box", [int(g["box"]) for g in geo], cap, ti.i32)
-        put("rigid_seg0", [g["segment"][0] for g in geo], cap, dims=(3,))
-        put("rigid_seg1", [g["segment"][1] for g in geo], cap, dims=(3,))
-        put("rigid_radius", [g["radius"] for g in geo], cap)
-        put("rigid_bound", [g["bound"] for g in geo], cap)
-        put("rigid_half", [g["half_extents"] for g in geo], cap, dims=(3,))
+        geom_starts = np.concatenate([[0], np.cumsum([len(x["geometry"]["geoms"]) for x in bodies])])
+        put("rigid_geom_start", geom_starts.astype(np.int32), cap + 1, ti.i32)
+        put("rigid_bound", [x["geometry"]["bound"] for x in bodies], cap)
+        put("rigid_half", [x["geometry"]["half_extents"] for x in bodies], cap, dims=(3,))
         put("rigid_friction", [x["friction"] for x in bodies], cap)
         put("rigid_damping", [x["damping"] for x in bodies], cap, dims=(2,))  # linear, angular [1/s]
         put("rigid_restitution", [x["restitution"] for x in bodies], cap)
+        geoms = rows(len(geo))
+        put("geom_body", owner, geoms, ti.i32)
+        put("geom_offset", [g["offset"] for g in geo], geoms, dims=(3,))
+        put("geom_rot", [g["rotation"] for g in geo], geoms, dims=(3, 3))
+        put("geom_point_start", starts("points"), geoms + 1, ti.i32)
+        put("geom_points", points, rows(len(points)), dims=(3,))
+        put("geom_point_radius", np.concatenate([g["point_radius"] for g in geo]), rows(len(points)))
+        put("geom_plane_start", starts("planes"), geoms + 1, ti.i32)
+        put("geom_planes", planes, rows(len(planes)), dims=(4,))
+        put("geom_edge_start", starts("edges"), geoms + 1, ti.i32)
+        put("geom_edges", edges, rows(len(edges)), dims=(4, 3))
+        put("geom_round", [int(g["round"]) for g in geo], geoms, ti.i32)
+        put("geom_box", [int(g["box"]) for g in geo], geoms, ti.i32)
+        put("geom_half", [g["half_extents"] for g in geo], geoms, dims=(3,))
+        put("geom_seg0", [g["segment"][0] for g in geo], geoms, dims=(3,))
+        put("geom_seg1", [g["segment"][1] for g in geo], geoms, dims=(3,))
+        put("geom_radius", [g["radius"] for g in geo], geoms)
+        put("geom_bound", [g["bound"] for g in geo], geoms)
         self.rigid_reach = float(max(g["radius"] for g in geo)) + self.RIGID_MARGIN
+
+    @ti.func
+    def geom_pose(self, g, x, r):
+        """(origin [m], rotation) of geom g in the world, its body's com at x and principal frame at r."""
+        return x + r @ self.geom_offset[g], r @ self.geom_rot[g]
 
     MAX_RIGID_POINTS = 1 << 24
     # Contacts are made from this far apart [m] (speculative: the solver lets the gap close within the

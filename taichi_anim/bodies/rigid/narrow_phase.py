@@ -12,7 +12,7 @@ collider's signed distance (`Collider.contact`). How many pairs each level passe
 
 Contacts within the margin are kept (speculative contacts: the solver lets such a gap close, no more), keyed
 by (body a, body b or collider, side, point) so that the next step can find its impulse again (warm
-starting); the keys are made in increasing order."""
+starting). A body made of several convex parts (a compound) meets others part by part (geoms)."""
 
 import taichi as ti
 
@@ -22,13 +22,14 @@ NO_BODY = -1  # the b side of a contact with a collider
 
 
 @ti.func
-def body_sdf(model: ti.template(), b, xb, rb, p):
-    """(signed distance [m], outward unit normal (world)) of body b (com xb, rotation rb) at world p."""
+def geom_sdf(model: ti.template(), b, xb, rb, p):
+    """(signed distance [m], outward unit normal (world)) of geom b (a body's convex part, its frame at
+    xb, rotation rb) at world p."""
     local = rb.transpose() @ (p - xb)
     dist = ti.cast(0.0, float)
     normal = ti.Vector([0.0, 1.0, 0.0], float)
-    if model.rigid_round[b]:
-        s0, s1 = model.rigid_seg0[b], model.rigid_seg1[b]
+    if model.geom_round[b]:
+        s0, s1 = model.geom_seg0[b], model.geom_seg1[b]
         axis = s1 - s0
         u = ti.cast(0.0, float)
         if axis.norm_sqr() > 0.0:
@@ -37,11 +38,11 @@ def body_sdf(model: ti.template(), b, xb, rb, p):
         length = off.norm()
         if length > 1e-12:
             normal = off / length
-        dist = length - model.rigid_radius[b]
+        dist = length - model.geom_radius[b]
     else:
         dist = -1e30
-        for k in range(model.rigid_plane_start[b], model.rigid_plane_start[b + 1]):
-            plane = model.rigid_planes[k]
+        for k in range(model.geom_plane_start[b], model.geom_plane_start[b + 1]):
+            plane = model.geom_planes[k]
             n = ti.Vector([plane[0], plane[1], plane[2]])
             d = n.dot(local) - plane[3]
             if d > dist:
@@ -78,6 +79,20 @@ def obb_overlap(ha, hb, ra, rb, d, margin):
 
 
 @ti.func
+def body_sdf(model: ti.template(), b, xb, rb, p):
+    """(signed distance [m], outward unit normal (world)) of body b (com xb, rotation rb) at world p:
+    its nearest part's."""
+    dist = ti.cast(1e30, float)
+    normal = ti.Vector([0.0, 1.0, 0.0], float)
+    for g in range(model.rigid_geom_start[b], model.rigid_geom_start[b + 1]):
+        xg, rg = model.geom_pose(g, xb, rb)
+        d, n = geom_sdf(model, g, xg, rg, p)
+        if d < dist:
+            dist, normal = d, n
+    return dist, normal
+
+
+@ti.func
 def pose(state: ti.template(), i):
     """(com [m], rotation matrix) of body i now."""
     return state.rigid_x[i], quat_matrix(state.rigid_q[i])
@@ -85,18 +100,18 @@ def pose(state: ti.template(), i):
 
 @ti.func
 def support(model: ti.template(), i, x, r, u):
-    """max over body i's points (com x, rotation r) of u . p: its extent along u [m]; for a box, in
-    closed form from its half extents (its OBB is the box)."""
+    """max over geom i's points (its frame at x, rotation r) of u . p: its extent along u [m]; for a
+    box, in closed form from its half extents."""
     best = -1e30
-    if model.rigid_box[i]:
-        best = u.dot(x) + (ti.abs(r.transpose() @ u)).dot(model.rigid_half[i])
+    if model.geom_box[i]:
+        best = u.dot(x) + (ti.abs(r.transpose() @ u)).dot(model.geom_half[i])
     else:
-        for k in range(model.rigid_point_start[i], model.rigid_point_start[i + 1]):
-            best = ti.max(best, u.dot(x + r @ model.rigid_points[k]))
+        for k in range(model.geom_point_start[i], model.geom_point_start[i + 1]):
+            best = ti.max(best, u.dot(x + r @ model.geom_points[k]))
     return best
 
 
 @ti.func
 def separation(model: ti.template(), a, xa, ra, b, xb, rb, u):
-    """How far body a lies beyond body b along u (negative: their overlap along u)."""
+    """How far geom a lies beyond geom b along u (negative: their overlap along u)."""
     return -support(model, a, xa, ra, -u) - support(model, b, xb, rb, u)

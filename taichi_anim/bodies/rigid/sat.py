@@ -64,12 +64,12 @@ def face_axes(model: ti.template(), a, xa, ra, b, xb, rb):
     towards a)): b's faces, then a's."""
     best = -1e30
     normal = ti.Vector([0.0, 1.0, 0.0], float)
-    b0, a0 = model.rigid_plane_start[b], model.rigid_plane_start[a]
-    nb, na = model.rigid_plane_start[b + 1] - b0, model.rigid_plane_start[a + 1] - a0
+    b0, a0 = model.geom_plane_start[b], model.geom_plane_start[a]
+    nb, na = model.geom_plane_start[b + 1] - b0, model.geom_plane_start[a + 1] - a0
     for m in range(nb + na):
         # one read at a selected index: Taichi evaluates both sides of a conditional expression, and the
         # unselected read would fall past the plane array for the last body
-        plane = model.rigid_planes[b0 + m if m < nb else a0 + m - nb]
+        plane = model.geom_planes[b0 + m if m < nb else a0 + m - nb]
         u = ti.Vector([plane[0], plane[1], plane[2]])
         u = rb @ u if m < nb else -(ra @ u)
         s = separation(model, a, xa, ra, b, xb, rb, u)
@@ -97,11 +97,11 @@ def box_edges(model: ti.template(), a, xa, ra, b, xb, rb):
             if s > best:
                 best, normal, best_i, best_j = s, u, i, j
     # b's edge along its axis j farthest along the normal, a's along its axis i farthest against it
-    side_b = ti.math.sign(rb.transpose() @ normal) * model.rigid_half[b]
-    side_a = -ti.math.sign(ra.transpose() @ normal) * model.rigid_half[a]
+    side_b = ti.math.sign(rb.transpose() @ normal) * model.geom_half[b]
+    side_a = -ti.math.sign(ra.transpose() @ normal) * model.geom_half[a]
     side_b[best_j], side_a[best_i] = 0.0, 0.0
-    half_b = rb @ (_unit(best_j) * model.rigid_half[b][best_j])
-    half_a = ra @ (_unit(best_i) * model.rigid_half[a][best_i])
+    half_b = rb @ (_unit(best_j) * model.geom_half[b][best_j])
+    half_a = ra @ (_unit(best_i) * model.geom_half[a][best_i])
     cb, ca = xb + rb @ side_b, xa + ra @ side_a
     pb, pa = segment_closest(cb - half_b, cb + half_b, ca - half_a, ca + half_a)
     return best, normal, 0.5 * (pa + pb)
@@ -125,14 +125,14 @@ def hull_edges(model: ti.template(), a, xa, ra, b, xb, rb):
     best = -1e30
     normal = ti.Vector([0.0, 1.0, 0.0], float)
     point = xa
-    for eb in range(model.rigid_edge_start[b], model.rigid_edge_start[b + 1]):
-        edge_b = model.rigid_edges[eb]
+    for eb in range(model.geom_edge_start[b], model.geom_edge_start[b + 1]):
+        edge_b = model.geom_edges[eb]
         pb0 = xb + rb @ ti.Vector([edge_b[0, 0], edge_b[0, 1], edge_b[0, 2]])
         pb1 = xb + rb @ ti.Vector([edge_b[1, 0], edge_b[1, 1], edge_b[1, 2]])
         nb0 = rb @ ti.Vector([edge_b[2, 0], edge_b[2, 1], edge_b[2, 2]])
         nb1 = rb @ ti.Vector([edge_b[3, 0], edge_b[3, 1], edge_b[3, 2]])
-        for ea in range(model.rigid_edge_start[a], model.rigid_edge_start[a + 1]):
-            edge_a = model.rigid_edges[ea]
+        for ea in range(model.geom_edge_start[a], model.geom_edge_start[a + 1]):
+            edge_a = model.geom_edges[ea]
             na0 = ra @ ti.Vector([edge_a[2, 0], edge_a[2, 1], edge_a[2, 2]])
             na1 = ra @ ti.Vector([edge_a[3, 0], edge_a[3, 1], edge_a[3, 2]])
             if _minkowski_face(nb0, nb1, -na0, -na1):
@@ -160,7 +160,7 @@ def polytope_axis(model: ti.template(), a, xa, ra, b, xb, rb):
     edge_s = ti.cast(-1e30, float)
     edge_n = normal
     point = xa
-    if model.rigid_box[a] and model.rigid_box[b]:
+    if model.geom_box[a] and model.geom_box[b]:
         edge_s, edge_n, point = box_edges(model, a, xa, ra, b, xb, rb)
     else:
         edge_s, edge_n, point = hull_edges(model, a, xa, ra, b, xb, rb)
