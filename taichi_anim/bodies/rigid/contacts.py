@@ -259,27 +259,66 @@ class RigidContacts:
             for b in range(a + 1, model.live_rigid()):
                 if model.rigid_inv_mass[a] == 0.0 and model.rigid_inv_mass[b] == 0.0:
                     continue
-                self.cascade_counts[0] += 1
                 xb, rb = state.rigid_x[b], self.rot[b]
-                d = xb - xa
-                margin = self.margin + self._reach(model, state, a, h) + self._reach(model, state, b, h)
-                if d.norm() > model.rigid_bound[a] + model.rigid_bound[b] + margin:
-                    continue
-                self.cascade_counts[1] += 1
-                reach = ti.abs(ra) @ model.rigid_half[a] + ti.abs(rb) @ model.rigid_half[b] + margin
-                if (ti.abs(d) > reach).any():
-                    continue
-                self.cascade_counts[2] += 1
-                if not obb_overlap(model.rigid_half[a], model.rigid_half[b], ra, rb, d, margin):
-                    continue
-                self.cascade_counts[3] += 1
-                before = self.found[None]
-                self._geoms(model, a, b, xa, ra, xb, rb, margin)
-                if self.found[None] > before:
-                    self.cascade_counts[4] += 1
+                level, margin = self._cascade(model, state, a, b, h, 3, False)
+                for k in range(level + 1):
+                    self.cascade_counts[k] += 1
+                if level == 3:
+                    before = self.found[None]
+                    self._geoms(model, a, b, xa, ra, xb, rb, margin)
+                    if self.found[None] > before:
+                        self.cascade_counts[4] += 1
             if model.rigid_inv_mass[a] > 0.0:
                 self._collider_contacts(model, a, xa, ra, t, self.margin + self._reach(model, state, a, h))
         self.count[None] = ti.min(self.found[None], ti.i32(self.sizes[0]))
+
+    @ti.func
+    def _cascade(self, model: ti.template(), state: ti.template(), a, b, h, stop, skip_obb):
+        """(the last level of the cascade that bodies a and b pass, up to `stop`: 0 none, 1 bounding
+        spheres, 2 world AABBs (each OBB projected on the world axes), 3 OBBs (passed unseen with
+        skip_obb); the contact margin of the pair [m], grown by how far each can move within h)."""
+        xa, ra = state.rigid_x[a], self.rot[a]
+        xb, rb = state.rigid_x[b], self.rot[b]
+        d = xb - xa
+        margin = self.margin + self._reach(model, state, a, h) + self._reach(model, state, b, h)
+        level = 0
+        if stop >= 1 and d.norm() <= model.rigid_bound[a] + model.rigid_bound[b] + margin:
+            level = 1
+            reach = ti.abs(ra) @ model.rigid_half[a] + ti.abs(rb) @ model.rigid_half[b] + margin
+            if stop >= 2 and not (ti.abs(d) > reach).any():
+                level = 2
+                if stop >= 3:
+                    if skip_obb:  # nested: Taichi's `or` would run the OBB test anyway
+                        level = 3
+                    elif obb_overlap(model.rigid_half[a], model.rigid_half[b], ra, rb, d, margin):
+                        level = 3
+        return level, margin
+
+    @ti.kernel
+    def cascade_pairs(
+        self, model: ti.template(), state: ti.template(), h: float, stop: ti.i32, skip_obb: ti.i32
+    ) -> ti.i32:
+        """How many pairs of bodies (with a dynamic one) pass the cascade up to level `stop` (0: all
+        such pairs, 1 bounding spheres, 2 AABBs, 3 OBBs, 4 the exact test finding a contact, whose
+        contacts are then written over this step's), from the poses now; skip_obb: AABBs straight to the
+        exact test. What benchmarks/rigid_cascade.py times level by level; the step does not call it."""
+        self.found[None] = 0
+        passed = 0
+        ti.loop_config(serialize=True)
+        for a in range(model.live_rigid()):
+            xa, ra = state.rigid_x[a], self.rot[a]
+            for b in range(a + 1, model.live_rigid()):
+                if model.rigid_inv_mass[a] != 0.0 or model.rigid_inv_mass[b] != 0.0:
+                    level, margin = self._cascade(model, state, a, b, h, ti.min(stop, 3), skip_obb)
+                    if stop == 4 and level == 3:
+                        before = self.found[None]
+                        self._geoms(model, a, b, xa, ra, state.rigid_x[b], self.rot[b], margin)
+                        if self.found[None] > before:
+                            level = 4
+                    if level >= stop:
+                        passed += 1
+        self.count[None] = ti.min(self.found[None], ti.i32(self.sizes[0]))
+        return passed
 
     @ti.func
     def _collider_contacts(self, model: ti.template(), a, xa, ra, t, margin):
