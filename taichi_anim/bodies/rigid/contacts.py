@@ -241,8 +241,14 @@ class RigidContacts:
     @ti.kernel
     def detect(self, model: ti.template(), state: ti.template(), t: float, h: float):
         """Every contact of the bodies' current poses (time t [s] for moving colliders) that can close
-        within the step h [s]: the margin grows with the bodies' speeds, so a fast body meets what lies
-        in its path (speculative contacts, Catto 2013) instead of passing through it."""
+        within the step h [s] (run_detect)."""
+        self.run_detect(model, state, t, h)
+
+    @ti.func
+    def run_detect(self, model: ti.template(), state: ti.template(), t, h):
+        """detect's work, for a kernel that launches it with others (dynamics.py): the margin
+        grows with the bodies' speeds, so a fast body meets what lies in its path (speculative contacts,
+        Catto 2013) instead of passing through it."""
         self.found[None] = 0
         for level in ti.static(range(len(CASCADE_LEVELS))):
             self.cascade_counts[level] = 0
@@ -453,6 +459,11 @@ class RigidContacts:
         """`sweeps` Gauss-Seidel sweeps: friction, then the normal impulse, contact by contact; the
         normal targets are the biased ones, or with `relaxed` the unbiased ones, after which the impulses
         are kept for the next step's warm start (store)."""
+        self.run_solve(model, state, sweeps, relaxed)
+
+    @ti.func
+    def run_solve(self, model: ti.template(), state: ti.template(), sweeps, relaxed: ti.template()):
+        """solve's work, for a kernel that launches it with others (dynamics.py)."""
         ti.loop_config(serialize=True)
         for _ in range(sweeps):
             for c in range(self.count[None]):
