@@ -266,8 +266,8 @@ class RigidContacts:
                 if model.rigid_inv_mass[a] == 0.0 and model.rigid_inv_mass[b] == 0.0:
                     continue
                 level, margin = self._cascade(model, state, a, xa, ra, reach_a, b, h, 3, False)
-                # counted in registers, written once below: a global add per pair cost the 1000-box bin
-                # 1.5 ms a step (half a million pairs)
+                # counted in registers, written once below: a loop of global adds per pair (one per
+                # level reached) made the 1000-box bin's step 1.4 ms longer (half a million pairs)
                 pairs += 1
                 if level >= 1:
                     spheres += 1

@@ -80,15 +80,14 @@ class RigidModel:
         """The contact geometry of every body (geometry.py) as fields. Per body: its convex parts (geoms)
         rigid_geom_start[i] to rigid_geom_start[i + 1], rigid_bound (sphere radius about the com) and
         rigid_half (OBB half extents along the principal axes), rigid_friction, rigid_restitution and
-        rigid_damping (linear, angular [1/s]). Per geom g: its body geom_body, its placement in the body's
-        principal frame geom_offset and geom_rot, and in its own frame its points (geom_points from
+        rigid_damping (linear, angular [1/s]). Per geom g: its placement in the body's principal
+        frame geom_offset and geom_rot, and in its own frame its points (geom_points from
         geom_point_start[g] to geom_point_start[g + 1], with geom_point_radius), its signed distance
         (geom_round: a core segment geom_seg0-geom_seg1 of radius geom_radius; else the planes geom_planes
         from geom_plane_start[g], and its edges geom_edges (ends and the normals of the two faces they
         join) from geom_edge_start[g]; geom_box: a box of half extents geom_half), and geom_bound (sphere
         radius about its origin)."""
         geo = [g for x in bodies for g in x["geometry"]["geoms"]]
-        owner = [i for i, x in enumerate(bodies) for _ in x["geometry"]["geoms"]]
         points = np.concatenate([g["points"] for g in geo])
         planes = np.concatenate([g["planes"] for g in geo])
         edges = np.concatenate([g["edges"] for g in geo])
@@ -117,7 +116,6 @@ class RigidModel:
         put("rigid_damping", [x["damping"] for x in bodies], cap, dims=(2,))  # linear, angular [1/s]
         put("rigid_restitution", [x["restitution"] for x in bodies], cap)
         geoms = rows(len(geo))
-        put("geom_body", owner, geoms, ti.i32)
         put("geom_offset", [g["offset"] for g in geo], geoms, dims=(3,))
         put("geom_rot", [g["rotation"] for g in geo], geoms, dims=(3, 3))
         put("geom_point_start", starts("points"), geoms + 1, ti.i32)
