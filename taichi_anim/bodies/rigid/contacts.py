@@ -151,8 +151,8 @@ class RigidContacts:
         stored with the lower body first and the normal from b towards a. Two polytopes share one normal,
         the pair's separating-axis normal `pair_n` (sat.py), with each point's gap measured along it from
         `face` (gb's extent along it for side 0, ga's for side 1): a corner on a corner would otherwise
-        take any face's normal. Round shapes take the signed distance's normal; a round shape's point
-        outside a polytope takes its exact distance (gjk.py), not the planes' lower bound. Where two equal
+        take any face's normal. Round shapes take the signed distance's normal (a polytope's planes: a lower
+        bound past a face's edge; GJK here too made the detection compile 2.7 s longer). Where two equal
         faces lie on each other, both sides find the same corners: the doubled contacts are kept
         (removing them made a 20-box tower creep 17 mm in 10 s instead of 1.2)."""
         a, b, ga, gb = pair
@@ -163,15 +163,10 @@ class RigidContacts:
             src, dst = gb, ga
             xs, rs, xd, rd = xb, rb, xa, ra
         mu, e = self._material(model, a, b)
-        exact = model.geom_round[src] != 0 and model.geom_round[dst] == 0
         for k in range(model.geom_point_start[src], model.geom_point_start[src + 1]):
             p = xs + rs @ model.geom_points[k]
             radius = model.geom_point_radius[k]
             d, n = geom_sdf(model, dst, xd, rd, p)
-            if exact and d > 0.0 and d - radius < margin:
-                d, _, closest = gjk(model, -1, p, rs, dst, xd, rd)
-                if d > 0.0:
-                    n = (p - closest) / d
             sep = d - radius
             if sep < margin:
                 normal = n if side == 0 else -n
@@ -182,22 +177,6 @@ class RigidContacts:
                 if sep < margin:
                     zero = ti.Vector.zero(float, 3)
                     self._add(a, b, ga, gb, side, k, point, normal, sep, zero, mu, e)
-
-    @ti.func
-    def _polytopes(self, model: ti.template(), pair, poses, margin):
-        """The contacts of two polytopes: the closest points of two edges where an edge-edge axis
-        separates them least, else both geoms' vertices along the face normal that does (sat.py)."""
-        a, b, ga, gb = pair
-        xa, ra, xb, rb = poses
-        normal, sep, edge, point = polytope_axis(model, ga, xa, ra, gb, xb, rb)
-        if edge:
-            if sep < margin:
-                mu, e = self._material(model, a, b)
-                self._add(a, b, ga, gb, FEATURES, 0, point, normal, sep, ti.Vector.zero(float, 3), mu, e)
-        else:
-            faces = ti.Vector([support(model, gb, xb, rb, normal), -support(model, ga, xa, ra, -normal)])
-            for side in range(2):
-                self._points_in(model, pair, poses, side, normal, faces[side], margin)
 
     @ti.func
     def _cores(self, model: ti.template(), pair, poses, margin):
@@ -225,14 +204,32 @@ class RigidContacts:
                     pair = (a, b, ga, gb)
                     poses = (pa, qa, pb, qb)
                     before = self.found[None]
-                    if model.geom_round[ga] == 0 and model.geom_round[gb] == 0:
-                        self._polytopes(model, pair, poses, margin)
-                    else:
-                        zero = ti.Vector.zero(float, 3)
+                    # Two polytopes: the closest points of two edges where an edge-edge axis separates
+                    # them least, else both geoms' vertices along the face normal that does (sat.py).
+                    # Each contact routine appears once in the kernel: a copy per case made the
+                    # detection compile seconds longer.
+                    polytopes = model.geom_round[ga] == 0 and model.geom_round[gb] == 0
+                    pair_n = ti.Vector.zero(float, 3)
+                    faces = ti.Vector.zero(float, 2)
+                    edge = False
+                    if polytopes:
+                        normal, sep, edge_wins, point = polytope_axis(model, ga, pa, qa, gb, pb, qb)
+                        edge = edge_wins
+                        if edge:
+                            if sep < margin:
+                                mu, e = self._material(model, a, b)
+                                zero = ti.Vector.zero(float, 3)
+                                self._add(a, b, ga, gb, FEATURES, 0, point, normal, sep, zero, mu, e)
+                        else:
+                            pair_n = normal
+                            faces = ti.Vector(
+                                [support(model, gb, pb, qb, normal), -support(model, ga, pa, qa, -normal)]
+                            )
+                    if not edge:
                         for side in range(2):
-                            self._points_in(model, pair, poses, side, zero, 0.0, margin)
-                        if self.found[None] == before:
-                            self._cores(model, pair, poses, margin)
+                            self._points_in(model, pair, poses, side, pair_n, faces[side], margin)
+                    if not polytopes and self.found[None] == before:
+                        self._cores(model, pair, poses, margin)
 
     # Without Taichi's CFG passes the detection compiles in 0.9 s instead of 3.8 s (prepare: 0.4 instead
     # of 1.2 s), and the dominoes demo's cold start is 3.9 s longer than its warm one instead of 7.8 s;

@@ -87,34 +87,32 @@ def _triangle_weights(p0, p1, p2):
     return weights
 
 
-# The faces of a tetrahedron (slots i, j, k) and the slot opposite each.
-_FACES = ((1, 2, 3, 0), (0, 2, 3, 1), (0, 1, 3, 2), (0, 1, 2, 3))
-
-
 @ti.func
 def _simplex_weights(w, n):
     """(weights (4,) of the point of the simplex w[0..n) closest to the origin, whether the origin is
-    inside the tetrahedron when n == 4)."""
+    inside the tetrahedron when n == 4). A triangle is the tetrahedron's one face case: the triangle's
+    closest point is written once in the kernel (a copy per face made the detection compile seconds
+    longer)."""
     weights = ti.Vector.zero(float, 4)
     inside = False
-    p0, p1, p2 = _row(w, 0), _row(w, 1), _row(w, 2)
     if n == 1:
         weights[0] = 1.0
     elif n == 2:
-        s = _segment_weights(p0, p1)
+        s = _segment_weights(_row(w, 0), _row(w, 1))
         weights[0], weights[1] = s[0], s[1]
-    elif n == 3:
-        s = _triangle_weights(p0, p1, p2)
-        weights[0], weights[1], weights[2] = s[0], s[1], s[2]
     else:
-        inside = True
-        best = 1e300
-        for f in ti.static(_FACES):
-            i, j, k, m = f
-            pi, pj, pk, pm = _row(w, i), _row(w, j), _row(w, k), _row(w, m)
+        inside = n == 4
+        best = ti.cast(1e300, float)
+        for f in range(1 if n == 3 else 4):
+            out = 3 if n == 3 else f  # the slot left out: this face's opposite corner
+            i = 1 if out == 0 else 0
+            j = 2 if out <= 1 else 1
+            k = 3 if out <= 2 else 2
+            pi, pj, pk, pm = _row(w, i), _row(w, j), _row(w, k), _row(w, out)
             normal = (pj - pi).cross(pk - pi)
-            # the origin beyond this face, seen from the opposite corner (a flat tetrahedron: every face)
-            if normal.dot(-pi) * normal.dot(pm - pi) <= 0.0:
+            # a triangle, or the origin beyond this face seen from the opposite corner (a flat
+            # tetrahedron: every face)
+            if n == 3 or normal.dot(-pi) * normal.dot(pm - pi) <= 0.0:
                 inside = False
                 s = _triangle_weights(pi, pj, pk)
                 closest = s[0] * pi + s[1] * pj + s[2] * pk
