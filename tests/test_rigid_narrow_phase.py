@@ -13,6 +13,7 @@ import taichi_anim as ta
 from taichi_anim.bodies.rigid.gjk import gjk
 from taichi_anim.bodies.rigid.sat import box_edges, face_axes, hull_edges, polytope_axis
 from taichi_anim.rotations import quat_to_matrix
+from taichi_anim.runtime import compile_with
 
 RNG_SEED = 20261129
 PAIRS = 10_000
@@ -38,6 +39,8 @@ def build_model():
     return b.finalize()
 
 
+# compiled as the step's kernel is (bodies/rigid/dynamics.py): with Taichi's default passes, seconds longer
+@compile_with(cfg_optimization=False, advanced_optimization=False)
 @ti.kernel
 def _query(
     model: ti.template(),

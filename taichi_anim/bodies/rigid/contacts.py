@@ -231,21 +231,11 @@ class RigidContacts:
                     if not polytopes and self.found[None] == before:
                         self._cores(model, pair, poses, margin)
 
-    # Without Taichi's CFG passes the detection compiles in 0.9 s instead of 3.8 s (prepare: 0.4 instead
-    # of 1.2 s), and the dominoes demo's cold start is 3.9 s longer than its warm one instead of 7.8 s;
-    # a step of the 210-box pyramid took the same time either way (0.55 ms detect, 0.47 ms prepare).
-    @compile_with(cfg_optimization=False)
-    @ti.kernel
-    def detect(self, model: ti.template(), state: ti.template(), t: float, h: float):
-        """Every contact of the bodies' current poses (time t [s] for moving colliders) that can close
-        within the step h [s] (run_detect)."""
-        self.run_detect(model, state, t, h)
-
     @ti.func
     def run_detect(self, model: ti.template(), state: ti.template(), t, h):
-        """detect's work, for a kernel that launches it with others (dynamics.py): the margin
-        grows with the bodies' speeds, so a fast body meets what lies in its path (speculative contacts,
-        Catto 2013) instead of passing through it."""
+        """Every contact of the bodies' current poses (time t [s] for moving colliders) that can close
+        within the step h [s]: the margin grows with the bodies' speeds, so a fast body meets what lies in
+        its path (speculative contacts, Catto 2013) instead of passing through it."""
         self.found[None] = 0
         # each body's rotation and world inverse inertia, once per step
         ti.loop_config(serialize=model.rigid_serial)
@@ -304,6 +294,7 @@ class RigidContacts:
                         level = 3
         return level, margin
 
+    @compile_with(cfg_optimization=False, advanced_optimization=False)  # as the step's kernel is
     @ti.kernel
     def cascade_pairs(
         self, model: ti.template(), state: ti.template(), h: float, stop: ti.i32, skip_obb: ti.i32
@@ -405,11 +396,10 @@ class RigidContacts:
                 found = lo
         return found
 
-    @compile_with(cfg_optimization=False)
-    @ti.kernel
-    def prepare(self, model: ti.template(), state: ti.template(), h: float, collision_sweeps: ti.i32):
+    @ti.func
+    def run_prepare(self, model: ti.template(), state: ti.template(), h, collision_sweeps):
         """Anchors, effective masses, targets; the last step's impulses applied again (warm start); then
-        the collision phase (collide)."""
+        the collision phase (_collide)."""
         ti.loop_config(serialize=True)
         for c in range(self.count[None]):
             a, b = self.a[c], self.b[c]
@@ -461,16 +451,11 @@ class RigidContacts:
             self.impulse[c] = impulse
         self._collide(model, state, h, collision_sweeps)
 
-    @ti.kernel
-    def solve(self, model: ti.template(), state: ti.template(), sweeps: ti.i32, relaxed: ti.template()):
-        """`sweeps` Gauss-Seidel sweeps: friction, then the normal impulse, contact by contact; the
-        normal targets are the biased ones, or with `relaxed` the unbiased ones, after which the impulses
-        are kept for the next step's warm start (store)."""
-        self.run_solve(model, state, sweeps, relaxed)
-
     @ti.func
     def run_solve(self, model: ti.template(), state: ti.template(), sweeps, relaxed: ti.template()):
-        """solve's work, for a kernel that launches it with others (dynamics.py)."""
+        """`sweeps` Gauss-Seidel sweeps: friction, then the normal impulse, contact by contact; the
+        normal targets are the biased ones, or with `relaxed` the unbiased ones, after which the impulses
+        are kept for the next step's warm start (_store)."""
         ti.loop_config(serialize=True)
         for _ in range(sweeps):
             for c in range(self.count[None]):

@@ -143,29 +143,21 @@ class RigidDynamics:
         if self.coupling is not None:  # the particles have moved to the end of the substep
             self.coupling.apply(model, state, state.time + h)
         keyframed = bool(model.rigid_motions)
-        if keyframed:  # their velocities over the substep, for the contacts and the drift
-            self._keyframes(model, state, state.time + 0.5 * h, False)
-        if not isinstance(self.scheme, str):
-            self._runge_kutta(model, state, h)
-            if keyframed:
-                self._keyframes(model, state, state.time + h, True)
-            return
         c = self.contacts
-        if c is not None and not keyframed:  # the same order as below, in three launches
-            self._contact_prelude(model, state, state.time, h)
-            c.prepare(model, state, h, c.collision_sweeps)
-            self._contact_finish(model, state, h, c.iterations, c.relax_iterations)
+        if c is not None:  # a semi-implicit scheme (the constructor refuses contacts otherwise)
+            self._contact_step(
+                model, state, state.time, h, c.collision_sweeps, c.iterations, c.relax_iterations, keyframed
+            )
             return
-        self._kick(model, state, h)
-        if c is not None:
-            c.detect(model, state, state.time, h)
-            c.prepare(model, state, h, c.collision_sweeps)  # with the collision phase
-            c.solve(model, state, c.iterations, 0)
-        self._drift(model, state, h)
+        if keyframed:  # their velocities over the substep, for the drift
+            self._keyframes(model, state, state.time + 0.5 * h, False)
+        if isinstance(self.scheme, str):
+            self._kick(model, state, h)
+            self._drift(model, state, h)
+        else:
+            self._runge_kutta(model, state, h)
         if keyframed:  # exactly where the keyframes put them at the substep's end
             self._keyframes(model, state, state.time + h, True)
-        if c is not None:
-            c.solve(model, state, c.relax_iterations, 1)  # and keeps the impulses for the next step
 
     def check(self, state) -> None:
         """DivergenceError if a body's pose or velocity is no longer finite, or the contacts overflowed."""
@@ -190,6 +182,10 @@ class RigidDynamics:
 
     @ti.kernel
     def _keyframes(self, model: ti.template(), state: ti.template(), t: float, poses: ti.template()):
+        self._move_keyframed(model, state, t, poses)
+
+    @ti.func
+    def _move_keyframed(self, model: ti.template(), state: ti.template(), t, poses: ti.template()):
         """Keyframed bodies at time t [s]: their velocities (omega and omega x (x - T) + dT/dt), and
         with `poses` their pose, R(t) x0 + T(t) and q(t) q0 from the rest pose (x0, q0)."""
         for k, motion, x0, q0 in ti.static(model.rigid_motions):
@@ -204,25 +200,40 @@ class RigidDynamics:
     def _linear_accel(self, model: ti.template(), state: ti.template(), i):
         return ti.Vector(self.gravity, dt=float) + state.rigid_force[i] * model.rigid_inv_mass[i]
 
-    # Three launches for the contact step instead of six (a launch costs about 24 us here, more than a
-    # 20-box tower's kick, drift or empty solve): the kick with the detection, compiled without Taichi's
-    # CFG passes as detect is (contacts.py); prepare; the solve, drift and relaxation, with them. On
-    # 2 cores a tower's step took 0.22 ms instead of 0.30, its cold compile 0.4 s longer. One launch for
-    # all of it compiled 9 s longer without the CFG passes (4.5 minutes with them), and detection with
-    # preparation in one launch 3.5 s longer.
-    @compile_with(cfg_optimization=False)
+    # The contact step in one launch (a launch costs about 24 us here, more than a 20-box tower's kick,
+    # drift or empty solve), compiled without Taichi's CFG passes and its "advanced" optimisations (store
+    # forwarding, CSE across the kernel): those passes grow faster than linearly with a kernel's size,
+    # and with them this kernel did not compile in minutes. Measured on a box pair on a plane, empty
+    # cache: 2.6 s to compile against 7.3 s for the three launches it replaces (detection 5.5 s with the
+    # CFG passes off alone); a Gauss-Seidel sweep costs the same 40 ns per contact within the noise
+    # (docs/guide/performance.md, "Compile time").
+    @compile_with(cfg_optimization=False, advanced_optimization=False)
     @ti.kernel
-    def _contact_prelude(self, model: ti.template(), state: ti.template(), t: float, h: float):
-        self._kick_bodies(model, state, h)
-        self.contacts.run_detect(model, state, t, h)
-
-    @ti.kernel
-    def _contact_finish(
-        self, model: ti.template(), state: ti.template(), h: float, iterations: ti.i32, relax: ti.i32
+    def _contact_step(
+        self,
+        model: ti.template(),
+        state: ti.template(),
+        t: float,
+        h: float,
+        collision_sweeps: ti.i32,
+        iterations: ti.i32,
+        relax: ti.i32,
+        keyframed: ti.template(),
     ):
-        self.contacts.run_solve(model, state, iterations, 0)
+        """Kick, detection (contacts at time t [s]), preparation with the collision phase, the biased
+        solve (`iterations` sweeps), drift, the relaxation (`relax` sweeps); keyframed bodies take their
+        velocities at the step's middle and their poses at its end."""
+        c = self.contacts
+        if ti.static(keyframed):
+            self._move_keyframed(model, state, t + 0.5 * h, False)
+        self._kick_bodies(model, state, h)
+        c.run_detect(model, state, t, h)
+        c.run_prepare(model, state, h, collision_sweeps)
+        c.run_solve(model, state, iterations, 0)
         self._drift_bodies(model, state, h)
-        self.contacts.run_solve(model, state, relax, 1)
+        if ti.static(keyframed):  # exactly where the keyframes put them at the substep's end
+            self._move_keyframed(model, state, t + h, True)
+        c.run_solve(model, state, relax, 1)  # and keeps the impulses for the next step
 
     @ti.kernel
     def _kick(self, model: ti.template(), state: ti.template(), h: float):
