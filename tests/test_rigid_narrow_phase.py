@@ -292,10 +292,11 @@ def test_the_gauss_map_pruned_separating_axes_give_the_brute_force_depth(random_
 G = 9.81
 
 
-def drop(bodies, seconds, dt=1 / 240):
-    """Step bodies [(shape, options)] under gravity; the snapshots every step."""
+def drop(bodies, seconds, dt=1 / 240, gravity=True):
+    """Step bodies [(shape, options)] under gravity (or none); the snapshots every step."""
     b = ta.Builder()
-    b.add_force_gravity((0.0, -G, 0.0))
+    if gravity:
+        b.add_force_gravity((0.0, -G, 0.0))
     for shape, options in bodies:
         b.add_rigid_body(shape, **options)
     m = b.finalize()
@@ -362,3 +363,29 @@ def test_a_capsule_rests_across_another():
     assert y.min() > 0.2 - 0.006 and abs(y[-1] - 0.2) < 0.006
     # and it stays across: nothing pushes it sideways
     assert np.abs(snaps[-1].position[1][[0, 2]]).max() < 1e-6
+
+
+@pytest.mark.parametrize("gap", [0.08, 0.06])
+def test_a_sphere_beside_a_boxs_edge_meets_it_at_its_exact_distance(gap):
+    # Centre `gap` past both faces at a box's edge: the exact distance is gap sqrt(2), the faces' planes
+    # give only gap (a lower bound). At 0.08 the sphere (r = 0.1) is 13 mm clear of the edge and nothing
+    # may push it (the planes would see 20 mm of penetration); at 0.06 it is 15 mm into the edge and is
+    # pushed out along the edge's normal, the diagonal (a plane would push along one face's normal).
+    r = 0.1
+    start = np.array([0.5 + gap, 0.5 + gap, 0.0])
+    snaps = drop(
+        [
+            (ta.shapes.Box((0.5, 0.5, 0.5)), dict(position=(0, 0, 0), kinematic=True)),
+            (ta.shapes.Sphere(r), dict(position=tuple(start))),
+        ],
+        0.5,
+        gravity=False,
+    )
+    moved = snaps[-1].position[1] - start
+    if gap * np.sqrt(2) > r:
+        assert np.abs(moved).max() < 1e-12
+    else:
+        assert moved[0] > 0.005 and moved[0] == pytest.approx(moved[1], rel=1e-9)
+        assert abs(moved[2]) < 1e-12
+        # out to the edge's distance r, less at most the slop the solver leaves (5 mm)
+        assert r - 0.005 - 1e-9 <= np.hypot(*(start + moved)[:2] - 0.5) <= r + 1e-3
