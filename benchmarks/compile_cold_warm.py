@@ -8,7 +8,7 @@ what an earlier run left in ~/.cache/taichi.
 
     .venv/bin/python benchmarks/compile_cold_warm.py [--before REV] [--demos ...] [--run-reps N] [--quick]
 
-With --demos the page is compile_cold_warm_subset (the full page keeps every demo).
+With --demos the page is compile_cold_warm_subset (the full page keeps every demo), or --page NAME.
 """
 
 import json
@@ -85,6 +85,7 @@ def main(argv=None) -> int:
         p.add_argument("--before", default=None, help="also measure this commit (a git archive copy)")
         p.add_argument("--demos", nargs="*", default=None, help="default: every demo")
         p.add_argument("--run-reps", type=int, default=1, help="warm runs per engine, alternating (median)")
+        p.add_argument("--page", default=None, help="results page name (default: compile_cold_warm[_subset])")
 
     args = parse_args(__doc__, argv, options)
     names = args.demos or (["cloth", "fountain"] if args.quick else list(SCENES))
@@ -107,7 +108,7 @@ def main(argv=None) -> int:
                 m["ms_per_frame"], m["ms_per_frame_runs"] = statistics.median(runs[label]), runs[label]
                 print(f"{name} {label}: {row(label, name, m)[2:]}", flush=True)
     page = Page(
-        "compile_cold_warm" if args.demos is None else "compile_cold_warm_subset",
+        args.page or ("compile_cold_warm" if args.demos is None else "compile_cold_warm_subset"),
         "Cold and warm starts per demo",
         args,
         {

@@ -15,7 +15,7 @@ result does not depend on the thread count), testing every body's bounding spher
 
 import taichi as ti
 
-from ...runtime import data_oriented
+from ...runtime import compile_with, data_oriented
 from .narrow_phase import body_sdf
 from .quaternion import quat_matrix, world_inverse_inertia
 
@@ -36,6 +36,7 @@ class ParticleCoupling:
         """Particle-body impulses applied in the last step."""
         return int(self.count[None])
 
+    @compile_with(cfg_optimization=False, advanced_optimization=False)
     @ti.kernel
     def apply(self, model: ti.template(), state: ti.template(), t: float):
         """Impacts of the particles alive at t [s] (the end of the particle step) on the bodies."""
