@@ -2,7 +2,8 @@
 reference, python-fcl (the Flexible Collision Library), on 10^4 random pose pairs of every pair of shape
 kinds, and the separating-axis test's Gauss-map pruning against the unpruned brute force over all edge
 pairs; then the contacts these give in scenes that had none before: two boxes meeting edge on edge, a
-capsule lying across a beam and across another capsule."""
+capsule lying across a beam and across another capsule, boxes resting on faces that only clipping finds
+in contact, and a sphere beside a box's edge at its exact distance."""
 
 import fcl
 import numpy as np
@@ -389,3 +390,48 @@ def test_a_sphere_beside_a_boxs_edge_meets_it_at_its_exact_distance(gap):
         assert abs(moved[2]) < 1e-12
         # out to the edge's distance r, less at most the slop the solver leaves (5 mm)
         assert r - 0.005 - 1e-9 <= np.hypot(*(start + moved)[:2] - 0.5) <= r + 1e-3
+
+
+OCTAGON = 0.5 * (np.sqrt(2) - 1)  # where a square turned by 45 degrees crosses an equal one's sides
+CLIPPED_SCENES = {
+    # two beams crossed at right angles: the square where they cross
+    "crossed beams": (
+        ta.shapes.Box((1.0, 0.05, 0.1)),
+        ta.shapes.Box((0.1, 0.05, 1.0)),
+        (0, 0, 0, 1),
+        [(sx * 0.1, sz * 0.1) for sx in (-1, 1) for sz in (-1, 1)],
+    ),
+    # a box turned by 45 degrees about y on an equal one: the regular octagon where they overlap
+    "turned box": (
+        ta.shapes.Box((0.5, 0.05, 0.5)),
+        ta.shapes.Box((0.5, 0.05, 0.5)),
+        (0, np.sin(np.pi / 8), 0, np.cos(np.pi / 8)),
+        [(sx * u, sz * v) for sx in (-1, 1) for sz in (-1, 1) for u, v in ((0.5, OCTAGON), (OCTAGON, 0.5))],
+    ),
+}
+
+
+@pytest.mark.parametrize("name", CLIPPED_SCENES)
+def test_a_box_rests_on_another_on_their_clipped_faces(name):
+    # No corner of either lies over the other's face: only face clipping finds the contact polygon, whose
+    # corners are where their edges cross (before it, the top body fell through).
+    below, above, turn, corners = CLIPPED_SCENES[name]
+    b = ta.Builder()
+    b.add_force_gravity((0.0, -G, 0.0))
+    b.add_rigid_body(below, position=(0, 0, 0), kinematic=True)
+    b.add_rigid_body(above, position=(0, 0.1005, 0), orientation=turn)
+    m = b.finalize()
+    s, integ = m.state(), ta.make_integrator("symplectic_euler")
+    stepper = integ.stepper_for(m)
+    for _ in range(240):
+        stepper.step(s, 1 / 240)
+    snap = s.rigid_snapshot()
+    assert 0.1 - 0.005 <= snap.position[1][1] <= 0.1005
+    assert np.abs(snap.position[1][[0, 2]]).max() < 1e-5 and np.abs(snap.angular_velocity).max() < 1e-6
+    contacts = stepper.solver("rigid bodies").contacts
+    points = contacts.point.to_numpy()[: contacts.count[None]]
+    # the polygon's corners, each found from both bodies (to the top body's drift, 10 um)
+    nearest = np.linalg.norm(points[:, None, [0, 2]] - np.array(corners)[None], axis=2)
+    assert nearest.min(axis=1).max() < 1e-5 and (nearest < 1e-5).sum(axis=0).tolist() == [2] * len(corners)
+    normals = contacts.normal.to_numpy()[: len(points)]
+    np.testing.assert_allclose(normals, [[0, -1, 0]] * len(points), atol=1e-4)  # from the top body down

@@ -96,6 +96,7 @@ class RigidModel:
                 f"rigid bodies: {len(points)} contact points (mesh vertices) exceed {self.MAX_RIGID_POINTS}"
             )
         self.rigid_point_count = len(points)
+        self.rigid_edge_count = len(edges)
         self.rigid_geom_count = len(geo)
         rows = capacity.bucket if self.size_buckets else (lambda n: max(n, 1))
         starts = lambda key: np.concatenate([[0], np.cumsum([len(g[key]) for g in geo])]).astype(np.int32)
