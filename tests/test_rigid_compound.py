@@ -133,3 +133,44 @@ def test_compound_bodies_collide_with_each_other_part_by_part():
     assert 0.1 - 0.005 <= snap.position[0][1] <= 0.1 + 1e-6
     assert 0.3 - 0.011 <= snap.position[1][1] <= 0.3 + 1e-6
     np.testing.assert_allclose(snap.position[1][[0, 2]], [0.0, 0.0], atol=1e-3)
+
+
+def torus(radius=0.3, tube=0.08):
+    import open3d as o3d
+
+    m = o3d.geometry.TriangleMesh.create_torus(
+        torus_radius=radius, tube_radius=tube, radial_resolution=24, tubular_resolution=12
+    )
+    return np.asarray(m.vertices), np.asarray(m.triangles)
+
+
+@pytest.mark.parametrize("contact", ["parts", "hull"])
+def test_a_ring_drops_over_a_peg_only_as_convex_parts(contact):
+    # A torus (hole radius 0.22 m) dropped flat over a peg 0.1 m wide: as CoACD's convex parts it slides
+    # down around the peg to the floor, its centre a tube radius up; as its convex hull (a disc) it
+    # stays on the peg's top, 1 m up, its centre a tube radius above.
+    v, f = torus()
+    ring = ta.shapes.Mesh(v, f, contact=contact)
+    b = ta.Builder()
+    b.add_force_gravity((0.0, -G, 0.0))
+    b.add_collider_plane((0, 1, 0), 0.0, friction=0.5, restitution=0.0)
+    b.add_rigid_body(ta.shapes.Box((0.05, 0.5, 0.05)), position=(0, 0.5, 0), kinematic=True)
+    b.add_rigid_body(ring, position=(0, 1.3, 0), orientation=quat_about((1, 0, 0), np.pi / 2))
+    m = b.finalize()
+    s, integ = m.state(), ta.make_integrator("symplectic_euler")
+    for _ in range(360):
+        integ.step(m, s, 1 / 240)
+    x = s.rigid_snapshot().position[1]
+    if contact == "parts":
+        assert len(ring.contact_parts()) > 4  # a ring needs several convex pieces
+        assert abs(x[1] - 0.08) < 0.01 and np.hypot(x[0], x[2]) < 0.22 - 0.05  # on the floor, round the peg
+    else:
+        assert abs(x[1] - 1.08) < 0.01
+
+
+def test_a_mesh_refuses_an_unknown_contact_model():
+    v, f = torus()
+    with pytest.raises(ParameterError, match="contact"):
+        ta.shapes.Mesh(v, f, contact="voxels")
+    with pytest.raises(ParameterError, match="threshold"):
+        ta.shapes.Mesh(v, f, contact="parts", threshold=0.0)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...shapes import Box, Capsule, Compound, ConvexHull, Sphere
+from ...shapes import Box, Capsule, ConvexHull, Sphere
 
 
 def to_principal(points, com, axes) -> np.ndarray:
@@ -86,9 +86,10 @@ def contact_geometry(shape, com: np.ndarray, axes: np.ndarray) -> dict:
     ("geoms", one for a simple shape, in the principal frame; a compound's, each in its own frame at an
     offset and rotation in the principal frame) and the body's bounding sphere and OBB about its centre of
     mass, along its principal axes."""
-    if isinstance(shape, Compound):
+    parts = shape.contact_parts()  # a compound's parts, a mesh's convex decomposition; None: itself
+    if parts is not None:
         geoms = []
-        for part, t, r in shape.parts:
+        for part, t, r in parts:
             # each part's frame at its own centre of mass: inside it, as the separating-axis test's
             # orientation of edge axes needs (sat.py)
             centre = part.mass_properties(1.0).com
