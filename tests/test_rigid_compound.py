@@ -174,3 +174,31 @@ def test_a_mesh_refuses_an_unknown_contact_model():
         ta.shapes.Mesh(v, f, contact="voxels")
     with pytest.raises(ParameterError, match="threshold"):
         ta.shapes.Mesh(v, f, contact="parts", threshold=0.0)
+
+
+def test_the_cascade_goes_on_between_parts_and_loses_no_contact():
+    # Two tori interlocked as chain links, one hanging in the other, each as CoACD's convex parts: the
+    # parts' OBBs leave fewer exact tests than their bounding spheres alone, and the same contacts.
+    v, f = torus()
+    link = ta.shapes.Mesh(v, f, contact="parts")
+    b = ta.Builder()
+    b.add_force_gravity((0.0, -G, 0.0))
+    b.add_rigid_body(link, position=(0, 0, 0), kinematic=True)  # in the xy plane
+    b.add_rigid_body(link, position=(0.3, 0, 0), orientation=quat_about((1, 0, 0), np.pi / 2))
+    m = b.finalize()
+    s, integ = m.state(), ta.make_integrator("symplectic_euler")
+    stepper = integ.stepper_for(m)
+    for _ in range(240):
+        stepper.step(s, 1 / 240)
+    contacts = stepper.solver("rigid bodies").contacts
+    assert contacts.cascade()["touching"] == 1  # hanging in the other
+    found = {}
+    for skip_obb in (1, 0):
+        assert contacts.cascade_pairs(m, s, 1 / 240, 4, skip_obb) == 1
+        n = contacts.count[None]
+        found[skip_obb] = (contacts.cascade(), np.sort(contacts.key.to_numpy()[:n]))
+    parts = len(link.contact_parts())
+    with_obb, spheres_only = found[0][0], found[1][0]
+    assert with_obb["part_spheres"] == spheres_only["part_spheres"] == spheres_only["exact_tests"]
+    assert 0 < with_obb["exact_tests"] < spheres_only["exact_tests"] <= parts * parts
+    np.testing.assert_array_equal(found[0][1], found[1][1])

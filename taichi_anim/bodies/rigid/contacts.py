@@ -21,7 +21,9 @@ from .narrow_phase import NO_BODY, geom_sdf, obb_overlap, pose, support
 from .quaternion import world_inverse_inertia
 from .sat import polytope_axis
 
-CASCADE_LEVELS = ("pairs", "spheres", "aabb", "obb", "touching")
+# Pairs of bodies reaching each level of the cascade, then pairs of their convex parts: past the parts'
+# bounding spheres, and given the exact test (past the parts' OBBs too, for bodies of several parts).
+CASCADE_LEVELS = ("pairs", "spheres", "aabb", "obb", "touching", "part_spheres", "exact_tests")
 # Sweeps of the collision phase: an impact passes one contact per sweep against the contacts' order
 # (along it, all in one sweep).
 COLLISION_SWEEPS = 4
@@ -280,13 +282,27 @@ class RigidContacts:
                 self._add(a, b, ga, gb, FEATURES, 0, point, n, sep, ti.Vector.zero(float, 3), mu, e)
 
     @ti.func
-    def _geoms(self, model: ti.template(), a, b, xa, ra, xb, rb, margin):
-        """The contacts of bodies a and b, part by part (one pair for simple shapes)."""
+    def _geoms(self, model: ti.template(), a, b, xa, ra, xb, rb, margin, skip_obb):
+        """The contacts of bodies a and b, part by part (one pair for simple shapes), and (the pairs of
+        parts whose bounding spheres meet, those given the exact test). The cascade goes on inside
+        bodies of several parts: each pair of parts passes its bounding spheres, then its OBBs (Gottschalk
+        et al.'s test, as between bodies; skipped with skip_obb), before the exact test."""
+        parted = (model.rigid_geom_start[a + 1] - model.rigid_geom_start[a] > 1) or (
+            model.rigid_geom_start[b + 1] - model.rigid_geom_start[b] > 1
+        )
+        near, exact = 0, 0
         for ga in range(model.rigid_geom_start[a], model.rigid_geom_start[a + 1]):
             pa, qa = model.geom_pose(ga, xa, ra)
             for gb in range(model.rigid_geom_start[b], model.rigid_geom_start[b + 1]):
                 pb, qb = model.geom_pose(gb, xb, rb)
+                test = False
                 if (pa - pb).norm() <= model.geom_bound[ga] + model.geom_bound[gb] + margin:
+                    near += 1
+                    test = True
+                    if parted and not skip_obb:  # with one part each, the bodies' OBB test was this one
+                        test = obb_overlap(model.geom_half[ga], model.geom_half[gb], qa, qb, pb - pa, margin)
+                if test:
+                    exact += 1
                     pair = (a, b, ga, gb)
                     poses = (pa, qa, pb, qb)
                     before = self.found[None]
@@ -322,6 +338,7 @@ class RigidContacts:
                                 self._edges_clipped(model, pair, poses, side, pair_n, faces[side], margin)
                     if not polytopes and self.found[None] == before:
                         self._cores(model, pair, poses, margin)
+        return near, exact
 
     @ti.func
     def run_detect(self, model: ti.template(), state: ti.template(), t, h):
@@ -336,7 +353,7 @@ class RigidContacts:
             self.rot[i] = r
             inv = model.rigid_inv_moments[i]
             self.inv_inertia[i] = world_inverse_inertia(r, inv)
-        pairs, spheres, aabbs, obbs, touching = 0, 0, 0, 0, 0
+        pairs, spheres, aabbs, obbs, touching, part_spheres, exact_tests = 0, 0, 0, 0, 0, 0, 0
         ti.loop_config(serialize=True)
         for a in range(model.live_rigid()):
             xa, ra = state.rigid_x[a], self.rot[a]
@@ -355,12 +372,15 @@ class RigidContacts:
                         if level == 3:
                             obbs += 1
                             before = self.found[None]
-                            self._geoms(model, a, b, xa, ra, state.rigid_x[b], self.rot[b], margin)
+                            xb, rb = state.rigid_x[b], self.rot[b]
+                            near, exact = self._geoms(model, a, b, xa, ra, xb, rb, margin, False)
+                            part_spheres += near
+                            exact_tests += exact
                             if self.found[None] > before:
                                 touching += 1
             if model.rigid_inv_mass[a] > 0.0:
                 self._collider_contacts(model, a, xa, ra, t, self.margin + reach_a)
-        counts = ti.Vector([pairs, spheres, aabbs, obbs, touching])
+        counts = ti.Vector([pairs, spheres, aabbs, obbs, touching, part_spheres, exact_tests])
         for level in ti.static(range(len(CASCADE_LEVELS))):
             self.cascade_counts[level] = counts[level]
         self.count[None] = ti.min(self.found[None], ti.i32(self.sizes[0]))
@@ -394,9 +414,11 @@ class RigidContacts:
         """How many pairs of bodies (with a dynamic one) pass the cascade up to level `stop` (0: all
         such pairs, 1 bounding spheres, 2 AABBs, 3 OBBs, 4 the exact test finding a contact, whose
         contacts are then written over this step's), from the poses now; skip_obb: AABBs straight to the
-        exact test. What benchmarks/rigid_cascade.py times level by level; the step does not call it."""
+        exact test, and the parts' bounding spheres too. With stop 4 it also writes the parts' counts
+        (cascade()'s part_spheres and exact_tests). What benchmarks/rigid_cascade.py times level by
+        level; the step does not call it."""
         self.found[None] = 0
-        passed = 0
+        passed, part_spheres, exact_tests = 0, 0, 0
         ti.loop_config(serialize=True)
         for a in range(model.live_rigid()):
             xa, ra = state.rigid_x[a], self.rot[a]
@@ -408,11 +430,17 @@ class RigidContacts:
                     )
                     if stop == 4 and level == 3:
                         before = self.found[None]
-                        self._geoms(model, a, b, xa, ra, state.rigid_x[b], self.rot[b], margin)
+                        xb, rb = state.rigid_x[b], self.rot[b]
+                        near, exact = self._geoms(model, a, b, xa, ra, xb, rb, margin, skip_obb)
+                        part_spheres += near
+                        exact_tests += exact
                         if self.found[None] > before:
                             level = 4
                     if level >= stop:
                         passed += 1
+        if stop == 4:
+            self.cascade_counts[5] = part_spheres
+            self.cascade_counts[6] = exact_tests
         self.count[None] = ti.min(self.found[None], ti.i32(self.sizes[0]))
         return passed
 
