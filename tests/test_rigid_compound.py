@@ -174,6 +174,8 @@ def test_a_mesh_refuses_an_unknown_contact_model():
         ta.shapes.Mesh(v, f, contact="voxels")
     with pytest.raises(ParameterError, match="threshold"):
         ta.shapes.Mesh(v, f, contact="parts", threshold=0.0)
+    with pytest.raises(ParameterError, match="part_vertices"):
+        ta.shapes.Mesh(v, f, contact="parts", part_vertices=3)
 
 
 def test_the_cascade_goes_on_between_parts_and_loses_no_contact():
