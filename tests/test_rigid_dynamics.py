@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import taichi_anim as ta
+from taichi_anim import capacity
 from taichi_anim.bodies.rigid.quaternion import quat_to_matrix
 from taichi_anim.errors import DivergenceError, ParameterError
 
@@ -21,6 +22,16 @@ BETA = {
 }
 # a box with three distinct moments: I = m/3 (b^2 + c^2, a^2 + c^2, a^2 + b^2)
 TUMBLER = ta.shapes.Box((0.05, 0.1, 0.2))
+
+
+@pytest.fixture(autouse=True)
+def size_buckets(taichi_f64):
+    """Capacity buckets on (capacity.py): the many scenes of one kind a test here builds reuse the first
+    one's fields, so their kernels compile once per test instead of once per scene (the convergence
+    test built nine tumblers, each compiling about 2 s). The physics is the same either way."""
+    capacity.set_enabled(True)
+    yield
+    capacity.set_enabled(None)
 
 
 def scene(*bodies, gravity=True):
