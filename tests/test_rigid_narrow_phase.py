@@ -435,3 +435,24 @@ def test_a_box_rests_on_another_on_their_clipped_faces(name):
     assert nearest.min(axis=1).max() < 1e-5 and (nearest < 1e-5).sum(axis=0).tolist() == [2] * len(corners)
     normals = contacts.normal.to_numpy()[: len(points)]
     np.testing.assert_allclose(normals, [[0, -1, 0]] * len(points), atol=1e-4)  # from the top body down
+
+
+def test_a_plank_on_a_tilted_boxs_ridge_tips_to_the_side_of_its_centre():
+    # The plank rests on one edge (the ridge) of a cube turned 30 degrees about z, its centre 0.3 m to
+    # the ridge's left: it must tip to the left. Clipping against the tilted cube's planes (not a face
+    # whose normal is the contact axis) once held it level on points in the air.
+    c, s_ = np.cos(np.pi / 12), np.sin(np.pi / 12)
+    ridge = 0.5 * np.array([np.cos(np.pi / 6) - 0.5, 0.5 + np.cos(np.pi / 6)])  # the cube's top edge
+    snaps = drop(
+        [
+            (
+                ta.shapes.Box((0.5, 0.5, 0.5)),
+                dict(position=(0, 0, 0), orientation=(0, 0, s_, c), kinematic=True),
+            ),
+            (ta.shapes.Box((1.5, 0.05, 0.2)), dict(position=(ridge[0] - 0.3, ridge[1] + 0.051, 0))),
+        ],
+        1.0,
+    )
+    q = snaps[-1].orientation[1]
+    turned = 2 * np.arcsin(q[2])  # about z: positive is counter-clockwise, the left end down is positive
+    assert turned > 0.2

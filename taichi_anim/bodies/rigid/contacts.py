@@ -223,7 +223,13 @@ class RigidContacts:
         # drifted 13 mm in 10 s instead of 1).
         near = tol + 1e-3 * ti.min(model.geom_bound[src], model.geom_bound[dst])
         mu, e = self._material(model, a, b)
-        for ei in range(model.geom_edge_start[src], model.geom_edge_start[src + 1]):
+        # Only against a reference face, one whose normal is the axis (to 0.8 degrees): gb's polytope
+        # without its facing plane is the face's prism only then. Past a tilted gb's ridge it would hold
+        # points far above gb that read as touching along the axis (a plank on a tilted box's ridge then
+        # stayed level, held in the air). The other side's reference face clips this pair.
+        if best < 1.0 - 1e-4:
+            facing = -1
+        for ei in range(model.geom_edge_start[src], model.geom_edge_start[src + 1] if facing >= 0 else 0):
             edge = model.geom_edges[ei]
             p0 = xs + rs @ ti.Vector([edge[0, 0], edge[0, 1], edge[0, 2]])
             p1 = xs + rs @ ti.Vector([edge[1, 0], edge[1, 1], edge[1, 2]])
@@ -330,9 +336,10 @@ class RigidContacts:
                     if not edge:
                         for side in range(2):
                             self._points_in(model, pair, poses, side, pair_n, faces[side], margin)
-                        # Face clipping where the vertices found hold too few corners of the contact
-                        # polygon: 4 or more span it (they are its corners), as on a stack or a pyramid,
-                        # where clipping found nothing new and took 13 % of a pyramid's step.
+                        # Face clipping where the vertices found are fewer than 4 (a heuristic: 4 found
+                        # are corners of the contact polygon, though not always all of them, e.g. two
+                        # quads overlapping in a hexagon), as on a stack or a pyramid, where clipping
+                        # found nothing new and took 13 % of a pyramid's step.
                         if polytopes and self.found[None] - before < 4:
                             for side in range(2):
                                 self._edges_clipped(model, pair, poses, side, pair_n, faces[side], margin)
