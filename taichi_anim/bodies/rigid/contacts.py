@@ -105,7 +105,9 @@ class RigidContacts:
         self.sizes.from_numpy(np.array([capacity, others, features]))
 
     def cascade(self) -> dict:
-        """Pairs of bodies that reached each level of the cascade in the last step."""
+        """Pairs of bodies that reached each level of the cascade in the last step, then pairs of their
+        parts: those whose bounding spheres met (part_spheres) and those given the exact test
+        (exact_tests)."""
         return dict(zip(CASCADE_LEVELS, (int(c) for c in self.cascade_counts.to_numpy()), strict=True))
 
     def check(self) -> None:
