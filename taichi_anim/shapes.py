@@ -197,14 +197,15 @@ class Mesh(Shape):
                 "the mesh encloses no volume or its faces wind clockwise seen from outside (reverse them)"
             )
         self.contact = validate.choice("contact", contact, MESH_CONTACTS)
-        self.threshold = validate.in_range("threshold", threshold, 1e-3, 1.0)
+        self.threshold = validate.in_range("threshold", threshold, 0.01, 1.0)  # CoACD's documented range
         if max_parts is not None:
             max_parts = validate.count("max_parts", max_parts, 1, MAX_COMPOUND_PARTS)
         self.max_parts = max_parts
         if part_vertices is not None:
             part_vertices = validate.count("part_vertices", part_vertices, 4, 256)
         self.part_vertices = part_vertices
-        self._parts = None
+        # computed here, once: a decomposition that fails says so when the shape is made
+        self._parts = self._convex_parts() if self.contact == "parts" else None
 
     def mass_properties(self, density: float) -> MassProperties:
         return polyhedron_mass_properties(self.vertices, self.faces, _positive("density", density))
@@ -213,20 +214,19 @@ class Mesh(Shape):
         return self.vertices, self.faces
 
     def contact_parts(self):
-        """Its convex parts (contact="parts": CoACD's decomposition, computed once), else None."""
-        if self.contact != "parts":
-            return None
-        if self._parts is None:
-            hulls = []
-            for v in self._decompose():
-                try:
-                    hulls.append((ConvexHull(v), np.zeros(3), np.eye(3)))
-                except ParameterError:  # a flat sliver of the decomposition holds no volume: no part
-                    pass
-            if not hulls:
-                raise ParameterError("the convex decomposition of the mesh found no part with a volume")
-            self._parts = tuple(hulls)
+        """Its convex parts (contact="parts": CoACD's decomposition), else None."""
         return self._parts
+
+    def _convex_parts(self) -> tuple:
+        hulls = []
+        for v in self._decompose():
+            try:
+                hulls.append((ConvexHull(v), np.zeros(3), np.eye(3)))
+            except ParameterError:  # a flat sliver of the decomposition holds no volume: no part
+                pass
+        if not hulls:
+            raise ParameterError("the convex decomposition of the mesh found no part with a volume")
+        return tuple(hulls)
 
     def _decompose(self) -> list:
         """The vertices of each convex part CoACD finds (deterministic: a fixed seed)."""

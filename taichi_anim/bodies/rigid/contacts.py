@@ -290,14 +290,17 @@ class RigidContacts:
                 self._add(a, b, ga, gb, FEATURES, 0, point, n, sep, ti.Vector.zero(float, 3), mu, e)
 
     @ti.func
-    def _geoms(self, model: ti.template(), a, b, xa, ra, xb, rb, margin, skip_obb):
-        """The contacts of bodies a and b, part by part (one pair for simple shapes), and (the pairs of
-        parts whose bounding spheres meet, those given the exact test). The cascade goes on inside
+    def _geoms(self, model: ti.template(), state: ti.template(), a, b, xa, ra, margin, skip_obb):
+        """The contacts of bodies a (pose xa, ra) and b, part by part (one pair for simple shapes), and
+        (the pairs of parts whose bounding spheres meet, those given the exact test, 1 if any contact was
+        found else 0). The cascade goes on inside
         bodies of several parts: each pair of parts passes its bounding spheres, then its OBBs (Gottschalk
         et al.'s test, as between bodies; skipped with skip_obb), before the exact test."""
         parted = (model.rigid_geom_start[a + 1] - model.rigid_geom_start[a] > 1) or (
             model.rigid_geom_start[b + 1] - model.rigid_geom_start[b] > 1
         )
+        xb, rb = state.rigid_x[b], self.rot[b]
+        found = self.found[None]
         near, exact = 0, 0
         for ga in range(model.rigid_geom_start[a], model.rigid_geom_start[a + 1]):
             pa, qa = model.geom_pose(ga, xa, ra)
@@ -347,7 +350,7 @@ class RigidContacts:
                                 self._edges_clipped(model, pair, poses, side, pair_n, faces[side], margin)
                     if not polytopes and self.found[None] == before:
                         self._cores(model, pair, poses, margin)
-        return near, exact
+        return near, exact, ti.i32(self.found[None] > found)
 
     @ti.func
     def run_detect(self, model: ti.template(), state: ti.template(), t, h):
@@ -380,13 +383,10 @@ class RigidContacts:
                         aabbs += 1
                         if level == 3:
                             obbs += 1
-                            before = self.found[None]
-                            xb, rb = state.rigid_x[b], self.rot[b]
-                            near, exact = self._geoms(model, a, b, xa, ra, xb, rb, margin, False)
+                            near, exact, touched = self._geoms(model, state, a, b, xa, ra, margin, False)
                             part_spheres += near
                             exact_tests += exact
-                            if self.found[None] > before:
-                                touching += 1
+                            touching += touched
             if model.rigid_inv_mass[a] > 0.0:
                 self._collider_contacts(model, a, xa, ra, t, self.margin + reach_a)
         counts = ti.Vector([pairs, spheres, aabbs, obbs, touching, part_spheres, exact_tests])
@@ -438,12 +438,10 @@ class RigidContacts:
                         model, state, a, xa, ra, reach_a, b, h, ti.min(stop, 3), skip_obb
                     )
                     if stop == 4 and level == 3:
-                        before = self.found[None]
-                        xb, rb = state.rigid_x[b], self.rot[b]
-                        near, exact = self._geoms(model, a, b, xa, ra, xb, rb, margin, skip_obb)
+                        near, exact, touched = self._geoms(model, state, a, b, xa, ra, margin, skip_obb)
                         part_spheres += near
                         exact_tests += exact
-                        if self.found[None] > before:
+                        if touched:
                             level = 4
                     if level >= stop:
                         passed += 1
