@@ -3,13 +3,13 @@ of 20 boxes per side (210 boxes), a row of 30 dominoes and 1000 boxes poured int
 
 The engines step the same boxes (sizes, densities, friction 0.6 box-box and box-floor) at the same time
 step DT, for T_END simulated seconds (dominoes 4 s, bin 3 s). Ours: semi-implicit Euler, sequential
-impulses (8 iterations + 4 relaxation sweeps, the defaults, and 4 + 1), f32. MuJoCo: its CG and Newton
-solvers (soft contacts, its defaults otherwise; peers/mujoco_boxes.py). PyBullet: its defaults (10 solver
-iterations; peers/pybullet_boxes.py). Per engine and scene: ms per step (median of STEP_BATCH-step
-batches after the first second, compile reported apart for ours: the first step), contacts at the end,
-the largest drift of a box from its start (tower, pyramid), the deepest penetration at the end, the
-kinetic energy at the end; for the dominoes, how many are down (tilted past 45 degrees) and when the
-last fell.
+impulses (8 iterations + 4 relaxation sweeps, the defaults, and 4 + 1, also with 4-point manifolds), f32.
+MuJoCo: its CG and Newton solvers (soft contacts, its defaults otherwise; peers/mujoco_boxes.py).
+PyBullet: its defaults (10 solver iterations; peers/pybullet_boxes.py). Per engine and scene: ms per step
+(median of STEP_BATCH-step batches after the first second, compile reported apart for ours: the first
+step), contacts at the end, the largest drift of a box from its start (tower, pyramid), the deepest
+penetration at the end, the kinetic energy at the end; for the dominoes, how many are down (tilted past 45
+degrees) and when the last fell.
 
     .venv/bin/python benchmarks/rigid.py [--quick]
 """
@@ -26,6 +26,12 @@ from taichi_anim.bodies.rigid.quaternion import quat_to_matrix
 DT = 0.002  # [s]: MuJoCo's default step
 FRICTION = 0.6
 STEP_BATCH = 50
+# (label, iterations, relaxation sweeps, manifold_points) of our runs
+OURS = (
+    ("taichi_anim", 8, 4, 0),
+    ("taichi_anim 4+1 sweeps", 4, 1, 0),
+    ("taichi_anim 4+1, 4-point manifolds", 4, 1, 4),
+)
 
 
 def tower():
@@ -79,13 +85,13 @@ def dominoes(count=30, spacing=0.22, height=0.4, width=0.2, thickness=0.04, push
 class Ours:
     """Our engine on the boxes: positions(), orientations(), step(n), contacts(), penetration()."""
 
-    def __init__(self, boxes, walls=None, iterations=8, relax=4):
+    def __init__(self, boxes, walls=None, iterations=8, relax=4, manifold=0):
         b = ta.Builder()
         b.add_force_gravity()
         b.add_collider_plane((0, 1, 0), 0.0, friction=FRICTION, restitution=0.0)
         for normal in () if walls is None else ((-1, 0, 0), (1, 0, 0), (0, 0, -1), (0, 0, 1)):
             b.add_collider_plane(normal, -walls, friction=FRICTION, restitution=0.0)
-        b.set_rigid_contacts(iterations=iterations, relax_iterations=relax)
+        b.set_rigid_contacts(iterations=iterations, relax_iterations=relax, manifold_points=manifold)
         for half, pos, v, w, rho in boxes:
             b.add_rigid_body(ta.shapes.Box(half), position=pos, velocity=v, angular_velocity=w, density=rho,
                              friction=FRICTION)  # fmt: skip
@@ -180,10 +186,10 @@ def main():
         log(name)
         seconds = 4.0 if fallen is not None else (3.0 if walls else t_end)
         results = {}
-        for label, iterations, relax in (("taichi_anim", 8, 4), ("taichi_anim 4+1 sweeps", 4, 1)):
+        for label, iterations, relax, manifold in OURS:
             init("f32")
             t0 = time.perf_counter()
-            ours = Ours(boxes, walls, iterations, relax)
+            ours = Ours(boxes, walls, iterations, relax, manifold)
             build = time.perf_counter() - t0
             results[label] = {**measure(ours, boxes, seconds, clock, fallen), "build_s": build}
         if mj is not None:
@@ -209,7 +215,7 @@ def main():
         {"dt": f"{DT} s (both engines)", "simulated": f"{t_end} s (dominoes 4 s, bin 3 s)",
          "friction": FRICTION,
          "ours": "f32, symplectic_euler (semi-implicit), 8 iterations + 4 relaxation sweeps (the defaults; "
-                 "and 4 + 1), margin 2 cm",
+                 "and 4 + 1, also with manifold_points=4), margin 2 cm",
          "mujoco": f"{getattr(mj, 'VERSION', 'absent')}, solvers CG and Newton, defaults otherwise",
          "pybullet": f"API {getattr(bullet, 'VERSION', 'absent')}, defaults (10 iterations)"},
     )  # fmt: skip

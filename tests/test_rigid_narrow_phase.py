@@ -437,6 +437,50 @@ def test_a_box_rests_on_another_on_their_clipped_faces(name):
     np.testing.assert_allclose(normals, [[0, -1, 0]] * len(points), atol=1e-4)  # from the top body down
 
 
+def polygon_area(points):
+    """Area of the convex polygon through 2-D `points` (any order)."""
+    centre = points.mean(axis=0)
+    p = points[np.argsort(np.arctan2(*(points - centre).T[::-1]))]
+    return 0.5 * abs(np.dot(p[:, 0], np.roll(p[:, 1], -1)) - np.dot(p[:, 1], np.roll(p[:, 0], -1)))
+
+
+@pytest.mark.parametrize("name", CLIPPED_SCENES)
+def test_four_point_manifolds_keep_the_corners_that_span_the_polygon_most(name):
+    # manifold_points=4: of the polygon's corners (each found twice), four distinct ones whose quadrilateral
+    # is the largest the polygon holds (the whole square; in the regular octagon, a square of 1/sqrt(2)
+    # its area), the same contacts (keys) from step to step, and the top body rests as on all of them.
+    below, above, turn, corners = CLIPPED_SCENES[name]
+    b = ta.Builder()
+    b.add_force_gravity((0.0, -G, 0.0))
+    b.set_rigid_contacts(manifold_points=4)
+    b.add_rigid_body(below, position=(0, 0, 0), kinematic=True)
+    b.add_rigid_body(above, position=(0, 0.1005, 0), orientation=turn)
+    m = b.finalize()
+    s, integ = m.state(), ta.make_integrator("symplectic_euler")
+    stepper = integ.stepper_for(m)
+    contacts = stepper.solver("rigid bodies").contacts
+    keys = set()
+    for k in range(240):
+        stepper.step(s, 1 / 240)
+        if k >= 10:  # landed
+            keys.add(tuple(contacts.key.to_numpy()[: contacts.count[None]]))
+    assert len(keys) == 1 and len(next(iter(keys))) == 4
+    snap = s.rigid_snapshot()
+    assert 0.1 - 0.005 <= snap.position[1][1] <= 0.1005
+    assert np.abs(snap.position[1][[0, 2]]).max() < 1e-5 and np.abs(snap.angular_velocity).max() < 1e-6
+    points = contacts.point.to_numpy()[:4][:, [0, 2]]
+    nearest = np.linalg.norm(points[:, None] - np.array(corners)[None], axis=2)
+    assert nearest.min(axis=1).max() < 1e-5 and len(set(nearest.argmin(axis=1))) == 4
+    full = polygon_area(np.array(corners))
+    best = 1.0 if len(corners) == 4 else 1.0 / np.sqrt(2.0)
+    assert polygon_area(points) == pytest.approx(best * full, rel=1e-4)
+
+
+def test_manifold_points_are_0_or_4():
+    with pytest.raises(ta.ParameterError, match="manifold_points"):
+        ta.Builder().set_rigid_contacts(manifold_points=3)
+
+
 def test_a_plank_on_a_tilted_boxs_ridge_tips_to_the_side_of_its_centre():
     # The plank rests on one edge (the ridge) of a cube turned 30 degrees about z, its centre 0.3 m to
     # the ridge's left: it must tip to the left. Clipping against the tilted cube's planes (not a face

@@ -15,8 +15,15 @@ from .quaternion import matrix_to_quat, quat_product, quat_to_matrix
 
 MAX_RIGID_BODIES = 1 << 20
 CONTACT_DEFAULTS = dict(
-    iterations=8, relax_iterations=4, beta=0.2, slop=0.005, max_push=3.0, bounce_speed=1.0, capacity=None
-)  # far beyond what the contact solver will serve; refused before allocating
+    iterations=8,
+    relax_iterations=4,
+    beta=0.2,
+    slop=0.005,
+    max_push=3.0,
+    bounce_speed=1.0,
+    capacity=None,
+    manifold_points=0,
+)
 
 
 def principal_frame(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -57,12 +64,17 @@ class RigidBuilder:
         max_push: float = 3.0,
         bounce_speed: float = 1.0,
         capacity: int | None = None,
+        manifold_points: int = 0,
     ) -> None:
         """Options of the contacts between rigid bodies and with colliders (on by default):
         iterations and relax_iterations: sweeps of the solver per step (biased, then relaxed); beta in
         (0, 1]: the fraction of a penetration past `slop` [m] pushed out per step, at most `max_push`
         [m/s]; bounce_speed [m/s]: slower approaches do not bounce; capacity: contacts held per step
-        (default from the bodies' points and the colliders). enabled=False: bodies pass through."""
+        (default from the bodies' points and the colliders); manifold_points: 0 keeps every corner found
+        per pair of convex parts (up to 16 for two boxes; on a stack, each corner twice, once from each
+        side), 4 keeps the four that span the contact polygon most, as Jolt and Bullet do: about half the
+        contacts of a pile and a sixth less time per step, but a 1:100 heavy-on-light stack no longer
+        stands at the default sweeps (docs/guide/rigid.md). enabled=False: bodies pass through."""
         if not validate.flag("enabled", enabled):
             self._rigid_contacts = None
             return
@@ -74,7 +86,10 @@ class RigidBuilder:
             max_push=validate.non_negative("max_push", max_push),
             bounce_speed=validate.non_negative("bounce_speed", bounce_speed),
             capacity=None if capacity is None else validate.count("capacity", capacity, 1, 1 << 24),
+            manifold_points=validate.count("manifold_points", manifold_points, 0, 4),
         )
+        if self._rigid_contacts["manifold_points"] not in (0, 4):
+            raise ParameterError(f"manifold_points must be 0 (keep all) or 4, got {manifold_points!r}")
 
     @property
     def rigid_count(self) -> int:

@@ -1,0 +1,465 @@
+"""Rigid contact detection: per pair of bodies the cascade (bounding spheres, AABBs, OBBs: narrow_phase.py)
+and, past it, the exact contacts of their convex parts, and every body's points against the colliders.
+Contact generation: a polytope pair's separating axis (sat.py), each polytope's vertices within the other
+along it, face clipping where few were found, GJK for round cores (gjk.py). The contacts of one pair of
+parts are kept to four (_reduce). Serial: the contacts come in the same order on every run."""
+
+import numpy as np
+import taichi as ti
+
+from ...runtime import compile_with, data_oriented, np_float
+from .gjk import gjk
+from .narrow_phase import NO_BODY, geom_sdf, obb_overlap, pose, support
+from .quaternion import world_inverse_inertia
+from .sat import polytope_axis
+
+# Pairs of bodies reaching each level of the cascade, then pairs of their convex parts: past the parts'
+# bounding spheres, and given the exact test (past the parts' OBBs too, for bodies of several parts).
+CASCADE_LEVELS = ("pairs", "spheres", "aabb", "obb", "touching", "part_spheres", "exact_tests")
+# A contact's side: a's point against b (0), b's point against a (1), the pair's closest features (2:
+# an edge-edge axis, or two round cores' closest points), or where an edge of a (3) or of b (4) leaves the
+# other polytope's face (face clipping).
+SIDES = 5
+FEATURES = 2
+CLIPPED = 3
+
+
+@data_oriented
+class ContactDetection:
+    """Detection methods of RigidContacts (contacts.py), which holds the buffers they fill."""
+
+    @ti.func
+    def _add(self, a, b, geom, other, side, point, p, n, sep, vs, mu, e):
+        """Contact of body a (its geom `geom`) with body b (NO_BODY: a collider), keyed by (geom, the
+        other geom or collider slot `other`, side, point) for the next step's warm start."""
+        slot = self.found[None]
+        self.found[None] += 1
+        if slot < self.sizes[0]:
+            self.a[slot] = a
+            self.b[slot] = b
+            self.key[slot] = ((ti.i64(geom) * self.sizes[1] + other) * SIDES + side) * self.sizes[2] + point
+            self.point[slot] = p
+            self.normal[slot] = n
+            self.sep[slot] = sep
+            self.surface_v[slot] = vs
+            self.mu[slot] = mu
+            self.e[slot] = e
+
+    @ti.func
+    def _reach(self, model: ti.template(), state: ti.template(), i, h):
+        """How far body i's surface can move in a step of h [s]: |v| h + |w| h times its bound."""
+        return h * (state.rigid_v[i].norm() + state.rigid_w[i].norm() * model.rigid_bound[i])
+
+    @ti.func
+    def _material(self, model: ti.template(), a, b):
+        """(friction, restitution) of a contact between bodies a and b."""
+        mu = ti.sqrt(model.rigid_friction[a] * model.rigid_friction[b])
+        return mu, ti.max(model.rigid_restitution[a], model.rigid_restitution[b])
+
+    @ti.func
+    def _points_in(self, model: ti.template(), pair, poses, side, pair_n, face, margin):
+        """Geom ga's points against geom gb's signed distance (side 0), or gb's against ga's (side 1), for
+        pair = (body a, body b, ga, gb) and poses = (origin, rotation) of ga and of gb; contacts are
+        stored with the lower body first and the normal from b towards a. Two polytopes share one normal,
+        the pair's separating-axis normal `pair_n` (sat.py), with each point's gap measured along it from
+        `face` (gb's extent along it for side 0, ga's for side 1): a corner on a corner would otherwise
+        take any face's normal. Round shapes take the signed distance's normal; a round shape's point
+        outside a polytope takes its exact distance and normal by GJK (gjk.py), not the planes' lower
+        bound, which past a face's edge reads a sphere clear of the edge as penetrating (0.7 s of
+        compile, on the kernel compiled as dynamics.py says; 2.7 s with Taichi's passes). Where two equal
+        faces lie on each other, both sides find the same corners: the doubled contacts are kept
+        (removing them made a 20-box tower creep 17 mm in 10 s instead of 1.2)."""
+        a, b, ga, gb = pair
+        xa, ra, xb, rb = poses
+        src, dst = ga, gb
+        xs, rs, xd, rd = xa, ra, xb, rb
+        if side == 1:
+            src, dst = gb, ga
+            xs, rs, xd, rd = xb, rb, xa, ra
+        mu, e = self._material(model, a, b)
+        exact = model.geom_round[src] != 0 and model.geom_round[dst] == 0
+        for k in range(model.geom_point_start[src], model.geom_point_start[src + 1]):
+            p = xs + rs @ model.geom_points[k]
+            radius = model.geom_point_radius[k]
+            d, n = geom_sdf(model, dst, xd, rd, p)
+            if exact and d > 0.0 and d - radius < margin:
+                d, _, closest = gjk(model, -1, p, rs, dst, xd, rd)
+                if d > 0.0:
+                    n = (p - closest) / d
+            sep = d - radius
+            if sep < margin:
+                normal = n if side == 0 else -n
+                point = p - radius * n
+                if pair_n.norm_sqr() > 0.0:
+                    normal = pair_n
+                    sep = pair_n.dot(p) - face if side == 0 else face - pair_n.dot(p)
+                if sep < margin:
+                    zero = ti.Vector.zero(float, 3)
+                    self._add(a, b, ga, gb, side, k, point, normal, sep, zero, mu, e)
+
+    @ti.func
+    def _edges_clipped(self, model: ti.template(), pair, poses, side, pair_n, face, margin):
+        """Face clipping for two polytopes whose separating axis is a face normal (the contact polygon
+        of Sutherland & Hodgman's clipping, 1974, which ODE's and Box2D's box tests take): each edge of
+        ga (side 0; gb's for side 1) is cut to the prism of gb's face, that is against every plane of gb
+        but the one facing ga (Cyrus & Beck, 1978), and where a plane cut it, the cut point within the
+        margin of gb's face is a contact. Its vertices are _points_in's; the cut points are the contact
+        polygon's corners that are no vertex, as where two beams cross with no corner over the other. A
+        point cut by two planes at once is on gb's edge between them, below gb's vertex that _points_in
+        finds: not added again."""
+        a, b, ga, gb = pair
+        xa, ra, xb, rb = poses
+        src, dst = ga, gb
+        xs, rs, xd, rd = xa, ra, xb, rb
+        toward = pair_n  # from gb towards ga: gb's face facing ga
+        if side == 1:
+            src, dst = gb, ga
+            xs, rs, xd, rd = xb, rb, xa, ra
+            toward = -pair_n
+        facing, best = -1, ti.cast(-2.0, float)
+        for k in range(model.geom_plane_start[dst], model.geom_plane_start[dst + 1]):
+            plane = model.geom_planes[k]
+            along = (rd @ ti.Vector([plane[0], plane[1], plane[2]])).dot(toward)
+            if along > best:
+                facing, best = k, along
+        # on a plane to the round-off of the coordinates: not cut by it
+        tol = ti.static(64.0 * float(np.finfo(np_float()).eps)) * (xd.norm() + model.geom_bound[dst])
+        # A cut point this close to a vertex of either (a thousandth of the smaller part's size) is that
+        # vertex's contact again: two stacked boxes a few microradians apart would otherwise add cut
+        # points next to their corners, which come and go with the sign of the angle (a 20-box tower
+        # drifted 13 mm in 10 s instead of 1).
+        near = tol + 1e-3 * ti.min(model.geom_bound[src], model.geom_bound[dst])
+        mu, e = self._material(model, a, b)
+        # Only against a reference face, one whose normal is the axis (to 0.8 degrees): gb's polytope
+        # without its facing plane is the face's prism only then. Past a tilted gb's ridge it would hold
+        # points far above gb that read as touching along the axis (a plank on a tilted box's ridge then
+        # stayed level, held in the air). The other side's reference face clips this pair.
+        if best < 1.0 - 1e-4:
+            facing = -1
+        for ei in range(model.geom_edge_start[src], model.geom_edge_start[src + 1] if facing >= 0 else 0):
+            edge = model.geom_edges[ei]
+            p0 = xs + rs @ ti.Vector([edge[0, 0], edge[0, 1], edge[0, 2]])
+            p1 = xs + rs @ ti.Vector([edge[1, 0], edge[1, 1], edge[1, 2]])
+            gap0 = toward.dot(p0) - face if side == 0 else face - pair_n.dot(p0)
+            gap1 = toward.dot(p1) - face if side == 0 else face - pair_n.dot(p1)
+            if ti.min(gap0, gap1) < margin:
+                # the part of the edge inside the prism: t in [t0, t1]; an end cut by two planes at once
+                # (within `near`) is on gb's edge between them, an end not cut is ga's vertex: `tied`
+                t0, t1 = ti.cast(0.0, float), ti.cast(1.0, float)
+                tied0, tied1 = True, True
+                for k in range(model.geom_plane_start[dst], model.geom_plane_start[dst + 1]):
+                    if k != facing:
+                        plane = model.geom_planes[k]
+                        n = rd @ ti.Vector([plane[0], plane[1], plane[2]])
+                        d = plane[3] + n.dot(xd)
+                        f0, f1 = n.dot(p0) - d, n.dot(p1) - d
+                        if ti.abs(f0) <= near and ti.abs(f1) <= near:
+                            t0 = 2.0  # along this side plane: its cut points are gb's vertices
+                        elif f0 > tol and f1 > tol:
+                            t0 = 2.0  # wholly outside this plane
+                        elif f0 > tol:
+                            t, slack = f0 / (f0 - f1), near / (f0 - f1)
+                            if t > t0 + slack:
+                                t0, tied0 = t, False
+                            elif t >= t0 - slack:
+                                tied0 = True
+                        elif f1 > tol:
+                            t, slack = f0 / (f0 - f1), near / (f1 - f0)
+                            if t < t1 - slack:
+                                t1, tied1 = t, False
+                            elif t <= t1 + slack:
+                                tied1 = True
+                if t0 < t1:
+                    for end in range(2):
+                        t = t0 if end == 0 else t1
+                        sep = gap0 + t * (gap1 - gap0)  # the gap is linear along the edge
+                        if sep < margin and not (tied0 if end == 0 else tied1):
+                            p = p0 + t * (p1 - p0)
+                            zero = ti.Vector.zero(float, 3)
+                            point = 2 * ei + end
+                            self._add(a, b, ga, gb, CLIPPED + side, point, p, pair_n, sep, zero, mu, e)
+
+    @ti.func
+    def _reduce(self, first):
+        """Keep at most four of the contacts from slot `first` on, all of one pair of parts: the contact polygon's corners that span it most, as Jolt's
+        PruneContactPoints and Bullet's manifold keep (Gregorius, "Robust Contact Creation for Physics
+        Simulations", GDC 2015): in the plane across the first contact's normal, the point farthest from
+        the points' centre, the point farthest from it, then the points farthest on either side of the
+        line through those two (the largest triangles). A near tie goes to the point found first, so the
+        same corners are kept from step to step and keep their warm starts (_pick)."""
+        last = self.found[None]
+        if last - first > 4 and last <= self.sizes[0]:
+            n = self.normal[first]
+            centre = ti.Vector.zero(float, 3)
+            for c in range(first, last):
+                centre += self.point[c]
+            centre /= last - first
+            zero = ti.Vector.zero(float, 3)
+            size = ti.cast(0.0, float)  # the polygon's radius, squared
+            for c in range(first, last):
+                size = ti.max(size, self._flat(c, centre, n).norm_sqr())
+            tol = 1e-2 * size
+            keep = ti.Vector([-1, -1, -1, -1])
+            keep[0] = self._pick(first, last, 0, centre, n, zero, zero, tol)
+            p0 = self._flat(keep[0], centre, n)
+            keep[1] = self._pick(first, last, 1, centre, n, p0, zero, tol)
+            line = self._flat(keep[1], centre, n) - p0
+            keep[2] = self._pick(first, last, 2, centre, n, p0, line, tol)
+            keep[3] = self._pick(first, last, 3, centre, n, p0, line, tol)
+            # moved down in slot order (each to a slot at or below its own): sorted, the -1s first
+            for i in ti.static(range(3)):
+                for j in ti.static(range(3 - i)):
+                    if keep[j] > keep[j + 1]:
+                        keep[j], keep[j + 1] = keep[j + 1], keep[j]
+            slot = first
+            for i in ti.static(range(4)):
+                if keep[i] >= 0:
+                    self._move(keep[i], slot)
+                    slot += 1
+            self.found[None] = slot
+
+    @ti.func
+    def _pick(self, first, last, kind: ti.template(), centre, n, p0, line, tol):
+        """The first contact whose score is within tol of the largest: kind 0 its squared distance from
+        the centre, 1 from p0, 2 and 3 the area it spans with the line from p0 on either side (-1 where no
+        point lies off the line by tol). First, not largest: where two points nearly coincide (a's corner
+        and b's on a stack), the one taken would flip with micrometre shifts and lose its warm start."""
+        best = ti.cast(-1e30, float)
+        for c in range(first, last):
+            best = ti.max(best, self._score(c, kind, centre, n, p0, line))
+        pick = -1
+        if ti.static(kind < 2) or best > tol:
+            for c in range(first, last):
+                if pick < 0 and self._score(c, kind, centre, n, p0, line) >= best - tol:
+                    pick = c
+        return pick
+
+    @ti.func
+    def _score(self, c, kind: ti.template(), centre, n, p0, line):
+        d = self._flat(c, centre, n)
+        score = ti.cast(0.0, float)
+        if ti.static(kind == 0):
+            score = d.norm_sqr()
+        elif ti.static(kind == 1):
+            score = (d - p0).norm_sqr()
+        else:
+            score = n.dot(line.cross(d - p0)) * ti.static(1.0 if kind == 2 else -1.0)
+        return score
+
+    @ti.func
+    def _flat(self, c, centre, n):
+        """Contact c's point about `centre`, in the plane across unit n."""
+        d = self.point[c] - centre
+        return d - n * n.dot(d)
+
+    @ti.func
+    def _move(self, src, dst):
+        """Contact `src` written over slot dst."""
+        self.a[dst], self.b[dst], self.key[dst] = self.a[src], self.b[src], self.key[src]
+        self.point[dst], self.normal[dst], self.sep[dst] = self.point[src], self.normal[src], self.sep[src]
+        self.surface_v[dst], self.mu[dst], self.e[dst] = self.surface_v[src], self.mu[src], self.e[src]
+
+    @ti.func
+    def _cores(self, model: ti.template(), pair, poses, margin):
+        """One contact at the closest points of two geoms' cores (GJK), for a round shape that meets the
+        other with none of its points: a capsule across another, or across a box's edge."""
+        a, b, ga, gb = pair
+        xa, ra, xb, rb = poses
+        dist, pa, pb = gjk(model, ga, xa, ra, gb, xb, rb)
+        if dist > 0.0:  # cores that meet: deep inside, where the points' contacts hold the pair
+            n = (pa - pb) / dist
+            sep = dist - model.geom_radius[ga] - model.geom_radius[gb]
+            if sep < margin:
+                mu, e = self._material(model, a, b)
+                point = pa - model.geom_radius[ga] * n
+                self._add(a, b, ga, gb, FEATURES, 0, point, n, sep, ti.Vector.zero(float, 3), mu, e)
+
+    @ti.func
+    def _geoms(self, model: ti.template(), state: ti.template(), a, b, xa, ra, margin, skip_obb):
+        """The contacts of bodies a (pose xa, ra) and b, part by part (one pair for simple shapes), and
+        (the pairs of parts whose bounding spheres meet, those given the exact test, 1 if any contact was
+        found else 0). The cascade goes on inside
+        bodies of several parts: each pair of parts passes its bounding spheres, then its OBBs (Gottschalk
+        et al.'s test, as between bodies; skipped with skip_obb), before the exact test."""
+        parted = (model.rigid_geom_start[a + 1] - model.rigid_geom_start[a] > 1) or (
+            model.rigid_geom_start[b + 1] - model.rigid_geom_start[b] > 1
+        )
+        xb, rb = state.rigid_x[b], self.rot[b]
+        found = self.found[None]
+        near, exact = 0, 0
+        for ga in range(model.rigid_geom_start[a], model.rigid_geom_start[a + 1]):
+            pa, qa = model.geom_pose(ga, xa, ra)
+            for gb in range(model.rigid_geom_start[b], model.rigid_geom_start[b + 1]):
+                pb, qb = model.geom_pose(gb, xb, rb)
+                test = False
+                if (pa - pb).norm() <= model.geom_bound[ga] + model.geom_bound[gb] + margin:
+                    near += 1
+                    test = True
+                    if parted and not skip_obb:  # with one part each, the bodies' OBB test was this one
+                        test = obb_overlap(model.geom_half[ga], model.geom_half[gb], qa, qb, pb - pa, margin)
+                if test:
+                    exact += 1
+                    pair = (a, b, ga, gb)
+                    poses = (pa, qa, pb, qb)
+                    before = self.found[None]
+                    # Two polytopes: the closest points of two edges where an edge-edge axis separates
+                    # them least, else both geoms' vertices along the face normal that does (sat.py).
+                    # Each contact routine appears once in the kernel: a copy per case made the
+                    # detection compile seconds longer.
+                    polytopes = model.geom_round[ga] == 0 and model.geom_round[gb] == 0
+                    pair_n = ti.Vector.zero(float, 3)
+                    faces = ti.Vector.zero(float, 2)
+                    edge = False
+                    if polytopes:
+                        normal, sep, edge_wins, point = polytope_axis(model, ga, pa, qa, gb, pb, qb)
+                        edge = edge_wins
+                        if edge:
+                            if sep < margin:
+                                mu, e = self._material(model, a, b)
+                                zero = ti.Vector.zero(float, 3)
+                                self._add(a, b, ga, gb, FEATURES, 0, point, normal, sep, zero, mu, e)
+                        else:
+                            pair_n = normal
+                            faces = ti.Vector(
+                                [support(model, gb, pb, qb, normal), -support(model, ga, pa, qa, -normal)]
+                            )
+                    if not edge:
+                        for side in range(2):
+                            self._points_in(model, pair, poses, side, pair_n, faces[side], margin)
+                        # Face clipping where the vertices found are fewer than 4 (a heuristic: 4 found
+                        # are corners of the contact polygon, though not always all of them, e.g. two
+                        # quads overlapping in a hexagon), as on a stack or a pyramid, where clipping
+                        # found nothing new and took 13 % of a pyramid's step.
+                        if polytopes and self.found[None] - before < 4:
+                            for side in range(2):
+                                self._edges_clipped(model, pair, poses, side, pair_n, faces[side], margin)
+                    if not polytopes and self.found[None] == before:
+                        self._cores(model, pair, poses, margin)
+                    if ti.static(self.manifold_points):
+                        self._reduce(before)
+        return near, exact, ti.i32(self.found[None] > found)
+
+    @ti.func
+    def run_detect(self, model: ti.template(), state: ti.template(), t, h):
+        """Every contact of the bodies' current poses (time t [s] for moving colliders) that can close
+        within the step h [s]: the margin grows with the bodies' speeds, so a fast body meets what lies in
+        its path (speculative contacts, Catto 2013) instead of passing through it."""
+        self.found[None] = 0
+        # each body's rotation and world inverse inertia, once per step
+        ti.loop_config(serialize=model.rigid_serial)
+        for i in range(model.live_rigid()):
+            r = pose(state, i)[1]
+            self.rot[i] = r
+            inv = model.rigid_inv_moments[i]
+            self.inv_inertia[i] = world_inverse_inertia(r, inv)
+        pairs, spheres, aabbs, obbs, touching, part_spheres, exact_tests = 0, 0, 0, 0, 0, 0, 0
+        ti.loop_config(serialize=True)
+        for a in range(model.live_rigid()):
+            xa, ra = state.rigid_x[a], self.rot[a]
+            reach_a = self._reach(model, state, a, h)
+            for b in range(a + 1, model.live_rigid()):
+                if model.rigid_inv_mass[a] == 0.0 and model.rigid_inv_mass[b] == 0.0:
+                    continue
+                level, margin = self._cascade(model, state, a, xa, ra, reach_a, b, h, 3, False)
+                # counted in registers, written once below: a loop of global adds per pair (one per
+                # level reached) made the 1000-box bin's step 1.4 ms longer (half a million pairs)
+                pairs += 1
+                if level >= 1:
+                    spheres += 1
+                    if level >= 2:
+                        aabbs += 1
+                        if level == 3:
+                            obbs += 1
+                            near, exact, touched = self._geoms(model, state, a, b, xa, ra, margin, False)
+                            part_spheres += near
+                            exact_tests += exact
+                            touching += touched
+            if model.rigid_inv_mass[a] > 0.0:
+                self._collider_contacts(model, a, xa, ra, t, self.margin + reach_a)
+        counts = ti.Vector([pairs, spheres, aabbs, obbs, touching, part_spheres, exact_tests])
+        for level in ti.static(range(len(CASCADE_LEVELS))):
+            self.cascade_counts[level] = counts[level]
+        self.count[None] = ti.min(self.found[None], ti.i32(self.sizes[0]))
+
+    @ti.func
+    def _cascade(self, model: ti.template(), state: ti.template(), a, xa, ra, reach_a, b, h, stop, skip_obb):
+        """(the last level of the cascade that bodies a and b pass, up to `stop`: 0 none, 1 bounding
+        spheres, 2 world AABBs (each OBB projected on the world axes), 3 OBBs (passed unseen with
+        skip_obb); the contact margin of the pair [m], grown by how far each can move within h)."""
+        d = state.rigid_x[b] - xa
+        margin = self.margin + reach_a + self._reach(model, state, b, h)
+        level = 0
+        if stop >= 1 and d.norm() <= model.rigid_bound[a] + model.rigid_bound[b] + margin:
+            level = 1
+            rb = self.rot[b]  # read only here: most pairs stop at the spheres
+            reach = ti.abs(ra) @ model.rigid_half[a] + ti.abs(rb) @ model.rigid_half[b] + margin
+            if stop >= 2 and not (ti.abs(d) > reach).any():
+                level = 2
+                if stop >= 3:
+                    if skip_obb:  # nested: Taichi's `or` would run the OBB test anyway
+                        level = 3
+                    elif obb_overlap(model.rigid_half[a], model.rigid_half[b], ra, rb, d, margin):
+                        level = 3
+        return level, margin
+
+    @compile_with(cfg_optimization=False, advanced_optimization=False)  # as the step's kernel is
+    @ti.kernel
+    def cascade_pairs(
+        self, model: ti.template(), state: ti.template(), h: float, stop: ti.i32, skip_obb: ti.i32
+    ) -> ti.i32:
+        """How many pairs of bodies (with a dynamic one) pass the cascade up to level `stop` (0: all
+        such pairs, 1 bounding spheres, 2 AABBs, 3 OBBs, 4 the exact test finding a contact, whose
+        contacts are then written over this step's), from the poses now; skip_obb: AABBs straight to the
+        exact test, and the parts' bounding spheres too. With stop 4 it also writes the parts' counts
+        (cascade()'s part_spheres and exact_tests). What benchmarks/rigid_cascade.py times level by
+        level; the step does not call it."""
+        self.found[None] = 0
+        passed, part_spheres, exact_tests = 0, 0, 0
+        ti.loop_config(serialize=True)
+        for a in range(model.live_rigid()):
+            xa, ra = state.rigid_x[a], self.rot[a]
+            reach_a = self._reach(model, state, a, h)
+            for b in range(a + 1, model.live_rigid()):
+                if model.rigid_inv_mass[a] != 0.0 or model.rigid_inv_mass[b] != 0.0:
+                    level, margin = self._cascade(
+                        model, state, a, xa, ra, reach_a, b, h, ti.min(stop, 3), skip_obb
+                    )
+                    if stop == 4 and level == 3:
+                        near, exact, touched = self._geoms(model, state, a, b, xa, ra, margin, skip_obb)
+                        part_spheres += near
+                        exact_tests += exact
+                        if touched:
+                            level = 4
+                    if level >= stop:
+                        passed += 1
+        if stop == 4:
+            self.cascade_counts[5] = part_spheres
+            self.cascade_counts[6] = exact_tests
+        self.count[None] = ti.min(self.found[None], ti.i32(self.sizes[0]))
+        return passed
+
+    @ti.func
+    def _collider_contacts(self, model: ti.template(), a, xa, ra, t, margin):
+        for c, collider in ti.static(tuple(enumerate(self.colliders))):
+            mu = ti.sqrt(model.rigid_friction[a] * collider.friction)
+            e = ti.max(model.rigid_restitution[a], collider.restitution)
+            slot = ti.i32(self.sizes[1]) - ti.static(len(self.colliders)) + c  # no size baked in
+            for g in range(model.rigid_geom_start[a], model.rigid_geom_start[a + 1]):
+                xg, rg = model.geom_pose(g, xa, ra)
+                for k in range(model.geom_point_start[g], model.geom_point_start[g + 1]):
+                    p = xg + rg @ model.geom_points[k]
+                    radius = model.geom_point_radius[k]
+                    d, n, vs = collider.contact(p, t)
+                    # A mesh collider answers only within its reach (farther points read as `reach`): its
+                    # contacts are found from there, however fast the body.
+                    if d >= ti.static(getattr(collider, "reach", 1e30) - 1e-9):
+                        continue
+                    if ti.static(collider.shell):
+                        # An open surface has no inside: the body is on its centre's side, and a point of
+                        # it past the sheet is penetrating (not outside on the far side, to be pushed
+                        # through).
+                        if n.dot(xa - p) < 0.0:
+                            n, d = -n, -d
+                    sep = d - radius
+                    if sep < margin:
+                        self._add(a, NO_BODY, g, slot, 0, k, p - radius * n, n, sep, vs, mu, e)
