@@ -13,6 +13,9 @@ G = 9.81
 BOX = ta.shapes.Box((0.2, 0.1, 0.2))
 
 
+pytestmark = pytest.mark.usefixtures("size_buckets")  # conftest.py: kernels compiled once
+
+
 def world(bodies, *, plane=None, gravity=True, contacts=None):
     """A model and state: bodies [(shape, add_rigid_body options)], an optional plane (normal, friction,
     restitution)."""

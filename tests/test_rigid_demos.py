@@ -66,6 +66,6 @@ def test_the_contact_kernels_stay_in_bounds():
     # evaluates both sides, and reading the unselected side once fell past an array (a segfault in CI).
     ta.init("cpu", precision="f64", debug=True)
     scene = make_scene("pile", layers=1, per_side=2)  # box, capsule, sphere, hull: the last has planes
-    for _ in range(30):  # they land after about 15 frames
+    for _ in range(20):  # they land after about 15 frames
         scene.advance_frame()
     assert scene.integrator.stepper_for(scene.model).solver("rigid bodies").contacts.count[None] > 0

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 import taichi_anim as ta
-from taichi_anim import capacity
 from taichi_anim.bodies.rigid.quaternion import quat_to_matrix
 from taichi_anim.errors import DivergenceError, ParameterError
 
@@ -24,14 +23,7 @@ BETA = {
 TUMBLER = ta.shapes.Box((0.05, 0.1, 0.2))
 
 
-@pytest.fixture(autouse=True)
-def size_buckets(taichi_f64):
-    """Capacity buckets on (capacity.py): the many scenes of one kind a test here builds reuse the first
-    one's fields, so their kernels compile once per test instead of once per scene (the convergence
-    test built nine tumblers, each compiling about 2 s). The physics is the same either way."""
-    capacity.set_enabled(True)
-    yield
-    capacity.set_enabled(None)
+pytestmark = pytest.mark.usefixtures("size_buckets")  # conftest.py: kernels compiled once
 
 
 def scene(*bodies, gravity=True):

@@ -194,8 +194,12 @@ def test_grid_hash_grid_and_brute_force_agree():
         out[method], _ = run(model, state, 1 / 1200, 150)
     moved = np.abs(out["brute"] - x).max()
     assert moved > 2 * r
-    assert np.abs(out["grid"] - out["brute"]).max() < 1e-9
-    assert np.abs(out["hash_grid"] - out["brute"]).max() < 1e-9
+    # Each structure lists a sphere's neighbours in another order, so the contact sums differ in round-off
+    # (f64: ~1e-17 m), which 150 steps of a pile's collisions amplify: up to 4e-8 m seen on a loaded
+    # machine (1e-9 held on an idle one). A contact one structure missed would differ by a step's
+    # overlap push, ~1e-4 m: the bound sits between, at 1e-6 m.
+    assert np.abs(out["grid"] - out["brute"]).max() < 1e-6
+    assert np.abs(out["hash_grid"] - out["brute"]).max() < 1e-6
 
 
 def test_same_result_on_one_and_two_threads():
