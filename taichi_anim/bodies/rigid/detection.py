@@ -11,7 +11,7 @@ from ...runtime import compile_with, data_oriented, np_float
 from .gjk import gjk
 from .narrow_phase import NO_BODY, geom_sdf, obb_overlap, pose, support
 from .quaternion import world_inverse_inertia
-from .sat import polytope_axis
+from .sat import polytope_axis, segment_axis
 
 # Pairs of bodies reaching each level of the cascade, then pairs of their convex parts: past the parts'
 # bounding spheres, and given the exact test (past the parts' OBBs too, for bodies of several parts).
@@ -181,12 +181,13 @@ class ContactDetection:
 
     @ti.func
     def _reduce(self, first):
-        """Keep at most four of the contacts from slot `first` on, all of one pair of parts: the contact polygon's corners that span it most, as Jolt's
-        PruneContactPoints and Bullet's manifold keep (Gregorius, "Robust Contact Creation for Physics
-        Simulations", GDC 2015): in the plane across the first contact's normal, the point farthest from
-        the points' centre, the point farthest from it, then the points farthest on either side of the
-        line through those two (the largest triangles). A near tie goes to the point found first, so the
-        same corners are kept from step to step and keep their warm starts (_pick)."""
+        """Keep at most four of the contacts from slot `first` on, all of one pair of parts: the contact
+        polygon's corners that span it most, as Jolt's PruneContactPoints and Bullet's manifold keep
+        (Gregorius, "Robust Contact Creation for Physics Simulations", GDC 2015): in the plane across the
+        first contact's normal, the point farthest from the points' centre, the point farthest from it,
+        then the points farthest on either side of the line through those two (the largest triangles). A
+        near tie goes to the point found first, so the same corners are kept from step to step and keep
+        their warm starts (_pick)."""
         last = self.found[None]
         if last - first > 4 and last <= self.sizes[0]:
             n = self.normal[first]
@@ -262,17 +263,49 @@ class ContactDetection:
     @ti.func
     def _cores(self, model: ti.template(), pair, poses, margin):
         """One contact at the closest points of two geoms' cores (GJK), for a round shape that meets the
-        other with none of its points: a capsule across another, or across a box's edge."""
+        other with none of its points: a capsule across another, or across a box's edge; where the cores
+        meet, a round core through a polytope (_core_through)."""
         a, b, ga, gb = pair
         xa, ra, xb, rb = poses
         dist, pa, pb = gjk(model, ga, xa, ra, gb, xb, rb)
-        if dist > 0.0:  # cores that meet: deep inside, where the points' contacts hold the pair
+        if dist > 0.0:
             n = (pa - pb) / dist
             sep = dist - model.geom_radius[ga] - model.geom_radius[gb]
             if sep < margin:
                 mu, e = self._material(model, a, b)
                 point = pa - model.geom_radius[ga] * n
                 self._add(a, b, ga, gb, FEATURES, 0, point, n, sep, ti.Vector.zero(float, 3), mu, e)
+        elif ti.static(model.rigid_round_and_polytopes):
+            if model.geom_round[ga] != model.geom_round[gb]:
+                self._core_through(model, pair, poses, margin)
+
+    @ti.func
+    def _core_through(self, model: ti.template(), pair, poses, margin):
+        """A round shape whose core passes through a polytope with neither end point within reach of it
+        (a capsule across a thin wall, pushed in): contacts at both ends of the core along the shortest
+        way out (sat.py's segment_axis, the depth EPA would find), each its own gap along that axis; two
+        round cores that meet are left to their end points' contacts."""
+        a, b, ga, gb = pair
+        xa, ra, xb, rb = poses
+        rnd, poly = ga, gb
+        xr, rr, xp, rp = xa, ra, xb, rb
+        sign = 1.0  # the stored normal runs from b towards a
+        if model.geom_round[gb]:
+            rnd, poly = gb, ga
+            xr, rr, xp, rp = xb, rb, xa, ra
+            sign = -1.0
+        s0, s1 = xr + rr @ model.geom_seg0[rnd], xr + rr @ model.geom_seg1[rnd]
+        depth, u = segment_axis(model, s0, s1, poly, xp, rp)  # u: from the polytope outwards
+        if depth > 0.0:
+            h = support(model, poly, xp, rp, u)
+            radius = model.geom_radius[rnd]
+            mu, e = self._material(model, a, b)
+            for end in range(1 if (s1 - s0).norm_sqr() == 0.0 else 2):
+                s = s0 if end == 0 else s1
+                sep = u.dot(s) - h - radius
+                if sep < margin:
+                    zero = ti.Vector.zero(float, 3)
+                    self._add(a, b, ga, gb, FEATURES, 1 + end, s - radius * u, sign * u, sep, zero, mu, e)
 
     @ti.func
     def _geoms(self, model: ti.template(), state: ti.template(), a, b, xa, ra, margin, skip_obb):

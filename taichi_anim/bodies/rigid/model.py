@@ -47,6 +47,7 @@ class RigidModel:
         self.rigid_serial = serial_loops(self.rigid_capacity)
         self.rigid_live = self.rigid_inv_mass = self.rigid_inv_moments = None
         self.rigid_reach = 0.0
+        self.rigid_round_and_polytopes = False
         if not b:
             return
         if self.size_buckets:
@@ -134,6 +135,8 @@ class RigidModel:
         put("geom_radius", [g["radius"] for g in geo], geoms)
         put("geom_bound", [g["bound"] for g in geo], geoms)
         self.rigid_reach = float(max(g["radius"] for g in geo)) + self.RIGID_MARGIN
+        # whether a round core can pass through a polytope (contacts compile that case only then)
+        self.rigid_round_and_polytopes = any(g["round"] for g in geo) and not all(g["round"] for g in geo)
 
     @ti.func
     def geom_pose(self, g, x, r):

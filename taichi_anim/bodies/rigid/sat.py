@@ -11,7 +11,7 @@ both bodies' vertices along its normal (contacts.py)."""
 
 import taichi as ti
 
-from .narrow_phase import separation
+from .narrow_phase import separation, support
 
 # A face of a, or an edge-edge axis, replaces the best axis so far only when clearly better: resting
 # contacts then keep one normal from step to step instead of flickering between near-ties (Jolt and Box2D
@@ -168,3 +168,33 @@ def polytope_axis(model: ti.template(), a, xa, ra, b, xb, rb):
     if edge:
         s, normal = edge_s, edge_n
     return normal, s, edge, point
+
+
+@ti.func
+def segment_axis(model: ti.template(), s0, s1, g, xg, rg):
+    """(depth [m], unit axis from g outwards) of the shortest translation that takes the segment s0 s1
+    (world) out of polytope geom g: the least h_g(u) - min(u . s0, u . s1) over g's face normals and, both
+    ways, the cross products of g's edges with the segment. These are the face normals of the Minkowski
+    difference of g and the segment, so the least is exact (the separating-axis theorem: the depth EPA
+    would find for this pair, without its polytope expansion). Positive: they overlap."""
+    d = s1 - s0
+    best = ti.cast(1e30, float)
+    axis = ti.Vector([0.0, 1.0, 0.0], float)
+    for k in range(model.geom_plane_start[g], model.geom_plane_start[g + 1]):
+        plane = model.geom_planes[k]
+        u = rg @ ti.Vector([plane[0], plane[1], plane[2]])
+        depth = plane[3] + u.dot(xg) - ti.min(u.dot(s0), u.dot(s1))
+        if depth < best:
+            best, axis = depth, u
+    for e in range(model.geom_edge_start[g], model.geom_edge_start[g + 1]):
+        edge = model.geom_edges[e]
+        along = rg @ ti.Vector([edge[1, 0] - edge[0, 0], edge[1, 1] - edge[0, 1], edge[1, 2] - edge[0, 2]])
+        u = along.cross(d)
+        length = u.norm()
+        if length > 1e-6 * along.norm() * d.norm():  # parallel: the face normals hold that case
+            u /= length
+            for sign in ti.static((1.0, -1.0)):
+                depth = support(model, g, xg, rg, sign * u) - ti.min(sign * u.dot(s0), sign * u.dot(s1))
+                if depth < best:
+                    best, axis = depth, sign * u
+    return best, axis
