@@ -122,7 +122,15 @@ def buckets_reset():
 
 
 @pytest.mark.parametrize(
-    "name, frames", [("fountain", 30), ("cloth", 10), ("spheres", 10), ("layers", 130), ("mesh", 200)]
+    "name, frames",
+    [
+        ("fountain", 30),
+        ("cloth", 10),
+        ("spheres", 10),
+        # the sheets need 130 frames to reach the ball (18 s on 2 cores): self-contact under buckets
+        pytest.param("layers", 130, marks=pytest.mark.slow),
+        ("mesh", 200),
+    ],
 )
 def test_buckets_run_the_same_physics(buckets_reset, name, frames):
     """The live count read at run time instead of a constant: the same arithmetic, compiled apart, so equal
