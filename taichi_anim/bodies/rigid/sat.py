@@ -7,7 +7,8 @@ the Minkowski difference, that is where the arcs of the two edges' face normals 
 
 Where an edge-edge axis wins, the contact is the closest points of the two edges (as ODE's dBoxBox
 and Jolt's edge case give one contact there); where a face wins, rigid contacts make the manifold from
-both bodies' vertices along its normal (contacts.py)."""
+both bodies' vertices along its normal (detection.py). segment_axis gives a round core's depth in a
+polytope it has gone through."""
 
 import taichi as ti
 
