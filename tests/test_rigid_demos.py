@@ -2,6 +2,7 @@
 inside its bin without sinking, the cloth tips the leaning stack over."""
 
 import numpy as np
+import pytest
 
 import taichi_anim as ta
 from taichi_anim.bodies.rigid.quaternion import quat_to_matrix
@@ -61,6 +62,7 @@ def test_the_cloth_tips_the_leaning_stack_over():
     assert scene.state.snapshot().x[:, 1].min() > 0.0
 
 
+@pytest.mark.slow  # Taichi's debug mode compiles a bound check into every access: 44 s on 2 cores
 def test_the_contact_kernels_stay_in_bounds():
     # Taichi's debug mode checks every field access: a conditional expression or an `and` in a kernel
     # evaluates both sides, and reading the unselected side once fell past an array (a segfault in CI).
