@@ -127,7 +127,7 @@ def buckets_reset():
         ("fountain", 30),
         ("cloth", 10),
         ("spheres", 10),
-        # the sheets need 130 frames to reach the ball (18 s on 2 cores): self-contact under buckets
+        # the sheets need 130 frames to reach the ball (34 s, loaded 2 cores): self-contact under buckets
         pytest.param("layers", 130, marks=pytest.mark.slow),
         ("mesh", 200),
     ],

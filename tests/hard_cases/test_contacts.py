@@ -133,7 +133,7 @@ def closest_pair_per_frame(frames: int, **options) -> list[float]:
     return out
 
 
-@pytest.mark.slow  # 17 s on 2 cores; test_spheres.py's 10,000-sphere pile checks overlaps by default
+@pytest.mark.slow  # 33 s, loaded 2 cores; the 10,000-sphere pile (test_spheres.py) checks overlaps
 def test_spheres_demo_keeps_its_spheres_apart():
     """The spheres demo with 20,000 spheres, its first 12 frames (the column's splash onto the floor, the
     deepest compression). Pass: the closest pair stays above 0.9 of a diameter at every frame. The demo's
