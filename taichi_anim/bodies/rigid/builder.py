@@ -14,16 +14,6 @@ from .geometry import contact_geometry
 from .quaternion import matrix_to_quat, quat_product, quat_to_matrix
 
 MAX_RIGID_BODIES = 1 << 20
-CONTACT_DEFAULTS = dict(
-    iterations=8,
-    relax_iterations=4,
-    beta=0.2,
-    slop=0.005,
-    max_push=3.0,
-    bounce_speed=1.0,
-    capacity=None,
-    manifold_points=0,
-)
 
 
 def principal_frame(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -51,7 +41,8 @@ class RigidBuilder:
 
     def _init_rigid(self) -> None:
         self._rigid: list[dict] = []
-        self._rigid_contacts: dict | None = dict(CONTACT_DEFAULTS)
+        self._rigid_contacts: dict | None = None
+        self.set_rigid_contacts()  # the defaults: set_rigid_contacts's signature holds them once
 
     def set_rigid_contacts(
         self,

@@ -94,7 +94,7 @@ class RigidContacts(ContactDetection):
         others = model.rigid_geom_count + len(self.colliders)
         features = max(model.rigid_point_count, 2 * model.rigid_edge_count, 1)  # points, edges' two ends
         self.sizes.from_numpy(np.array([capacity, others, features]))
-        # compiled in only where asked for: it adds 0.6 s to a scene's first step (f64)
+        # a compile-time switch: scenes that keep every corner compile no reduction code
         self.manifold_points = manifold_points
 
     def cascade(self) -> dict:
