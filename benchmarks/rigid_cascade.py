@@ -6,14 +6,17 @@ alone.
 Scenes, each settled first (semi-implicit Euler, f32, DT = 2 ms, the contact defaults): the 210-box
 pyramid, 1000 boxes poured into a bin (2 s), a heap of 300 sticks (thin boxes 0.5 x 0.02 x 0.02 m,
 turned at random, dropped into the same bin, 2 s): long bodies turned off the world axes, about which an
-AABB is loose, the course's case for OBBs; and a chain of 20 interlocked rings (tori as CoACD's convex
-parts, `Mesh(contact="parts")`) dropped on the floor (1 s), where the cascade goes on between parts
-(bounding spheres, then OBBs, then the exact test) and "exact tests" counts pairs of parts.
+AABB is loose, the course's case for OBBs; and a chain of 20 interlocked rings dropped on the floor (1 s),
+the tori as CoACD's convex parts (`Mesh(contact="parts")`, 12 each) and as their 576 triangles
+(`Mesh(contact="triangles")`), where the cascade goes on down each body's tree of OBBs over its parts
+(a pair of nodes: bounding spheres, then OBBs; a pair of leaves: then the exact test) and "exact tests"
+counts pairs of parts.
 
 Per level, `RigidContacts.cascade_pairs(stop)` runs the cascade over every pair of bodies up to that
 level, timed (median of REPEATS runs after a warm-up); C at a level is the time added by that level
 divided by the pairs that reach it. "AABB alone" runs the exact test on every pair that passes the
-AABBs, skipping the OBB level (between parts too: their bounding spheres, then the exact test), and is
+AABBs, skipping the OBB level (inside bodies too: the trees' nodes by bounding spheres and world AABBs,
+the boxes projected on the world axes), and is
 timed the same way.
 
     .venv/bin/python benchmarks/rigid_cascade.py [--quick]
@@ -46,17 +49,17 @@ def sticks(count=300, half=(0.25, 0.01, 0.01)):
 
 
 class Chain:
-    """`count` rings (tori, radius 0.3 m, tube 0.08 m, as convex parts) interlocked along x, every other
-    one turned upright, 1 m above the floor: what benchmarks read of an engine (model, state, stepper,
-    step(n))."""
+    """`count` rings (tori, radius 0.3 m, tube 0.08 m, 576 triangles; as convex parts, or as their
+    triangles with contact="triangles") interlocked along x, every other one turned upright, 1 m above the
+    floor: what benchmarks read of an engine (model, state, stepper, step(n))."""
 
-    def __init__(self, count=20, spacing=0.42):
+    def __init__(self, count=20, spacing=0.42, contact="parts"):
         import open3d as o3d
 
         torus = o3d.geometry.TriangleMesh.create_torus(
             torus_radius=0.3, tube_radius=0.08, radial_resolution=24, tubular_resolution=12
         )
-        ring = ta.shapes.Mesh(np.asarray(torus.vertices), np.asarray(torus.triangles), contact="parts")
+        ring = ta.shapes.Mesh(np.asarray(torus.vertices), np.asarray(torus.triangles), contact=contact)
         upright = (np.sin(np.pi / 4), 0.0, 0.0, np.cos(np.pi / 4))  # its axis along y: in the xz plane
         b = ta.Builder()
         b.add_force_gravity()
@@ -68,7 +71,7 @@ class Chain:
         self.model = b.finalize()
         self.state = self.model.state()
         self.stepper = ta.make_integrator("symplectic_euler").stepper_for(self.model)
-        self.parts = len(ring.contact_parts())
+        self.parts = len(ring.contact_parts() or ring.contact_prisms())
 
     def step(self, n=1):
         for _ in range(n):
@@ -114,6 +117,7 @@ def main():
         (f"bin ({bin_count} boxes)", lambda: Ours(bin_of_boxes(bin_count), BIN_HALF), 2.0),
         (f"sticks ({stick_count})", lambda: Ours(sticks(stick_count), BIN_HALF), 2.0),
         (f"chain ({chain_count} rings as convex parts)", lambda: Chain(chain_count), 1.0),
+        (f"chain ({chain_count} rings as triangles)", lambda: Chain(chain_count, contact="triangles"), 1.0),
     ]
     rows, exact_rows, data = [], [], {}
     for name, make, settle in scenes:
@@ -156,7 +160,7 @@ def main():
         exact_rows,
         "exact tests: pairs of convex parts given the exact test (one per pair of bodies for simple "
         "shapes); with the OBB level, between bodies and between parts; AABB alone: no OBB test at either "
-        "level (bodies: spheres, AABBs; parts: bounding spheres).",
+        "level (bodies and the nodes of their trees: spheres, AABBs).",
     )
     page.write(data)
 

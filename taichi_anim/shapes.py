@@ -56,6 +56,11 @@ class Shape:
         frame, or None when it collides as itself (its convex hull)."""
         return None
 
+    def contact_prisms(self):
+        """The triangle prisms the shape collides as, (T,6,3) in its frame (each surface triangle, then
+        the same triangle moved inwards), or None."""
+        return None
+
 
 def _positive(name: str, value) -> float:
     return validate.positive(name, value)
@@ -147,7 +152,9 @@ class Capsule(Shape):
         return {"shape": "capsule", "radius": self.radius, "half_length": self.half_length}
 
 
-MESH_CONTACTS = ("hull", "parts")
+MESH_CONTACTS = ("hull", "parts", "triangles")
+# Triangles a mesh may collide as (contact="triangles"): its tree of prisms stays 20 levels deep at most.
+MAX_CONTACT_TRIANGLES = 1 << 20
 
 
 class Mesh(Shape):
@@ -164,7 +171,11 @@ class Mesh(Shape):
     the product of their edge counts: a chain of 20 interlocked rings found its contacts in 39 ms with
     the parts' own 34-59 vertices, 24.5 ms with 32 and 7.8 ms with 16, the default
     (benchmarks/rigid_cascade.py). It takes seconds, once, when the shape is made (a 576-triangle torus:
-    12 parts in about 2 s). Its mass properties are the mesh's own either way."""
+    12 parts in about 2 s). "triangles" (as Bullet's and Jolt's mesh shapes): its own surface, each
+    triangle a prism reaching `thickness` [m] inwards from it (None: per triangle, half the way to the
+    surface opposite it along its normal, and no deeper than its longest edge), so that what sinks into
+    the surface is pushed back out the way it came; the prisms sit in a tree of oriented bounding boxes
+    (bodies/rigid/obb_tree.py). Its mass properties are the mesh's own in every case."""
 
     kind = "mesh"
 
@@ -177,6 +188,7 @@ class Mesh(Shape):
         threshold: float = 0.05,
         max_parts=None,
         part_vertices=16,
+        thickness=None,
     ):
         v = np.array(vertices, dtype=np.float64)
         f = np.array(faces, dtype=np.int64)
@@ -204,6 +216,13 @@ class Mesh(Shape):
         if part_vertices is not None:
             part_vertices = validate.count("part_vertices", part_vertices, 4, 256)
         self.part_vertices = part_vertices
+        if thickness is not None:
+            thickness = validate.positive("thickness", thickness)
+        self.thickness = thickness
+        if self.contact == "triangles" and len(f) > MAX_CONTACT_TRIANGLES:
+            raise ParameterError(
+                f"contact='triangles': {len(f)} faces exceed {MAX_CONTACT_TRIANGLES} (decimate the mesh)"
+            )
         # computed here, once: a decomposition that fails says so when the shape is made
         self._parts = self._convex_parts() if self.contact == "parts" else None
 
@@ -216,6 +235,46 @@ class Mesh(Shape):
     def contact_parts(self):
         """Its convex parts (contact="parts": CoACD's decomposition), else None."""
         return self._parts
+
+    def contact_prisms(self):
+        """Its triangles as prisms (contact="triangles"), else None: (T,6,3), each triangle's corners
+        then the same corners moved `thickness` inwards along its normal; degenerate triangles have
+        none."""
+        if self.contact != "triangles":
+            return None
+        v, f = self.vertices, self.faces
+        tri = v[f]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        area2 = np.linalg.norm(n, axis=1)
+        edges = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
+        keep = area2 > 1e-12 * edges**2
+        tri, n, edges = tri[keep], n[keep] / area2[keep, None], edges[keep]
+        if self.thickness is not None:
+            depth = np.full(len(tri), float(self.thickness))
+        else:
+            depth = self._inner_depth(tri, n, edges)
+        return np.concatenate([tri, tri - depth[:, None, None] * n[:, None, :]], axis=1)
+
+    def _inner_depth(self, tri, n, edges) -> np.ndarray:
+        """Per triangle, half the distance to the surface opposite it (rays cast inwards along -n from
+        its centroid and from points near its corners; the least hit), at most its longest edge: a
+        prism that stays inside the mesh, and compact."""
+        import open3d as o3d
+
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(
+            o3d.core.Tensor(self.vertices.astype(np.float32)), o3d.core.Tensor(self.faces.astype(np.uint32))
+        )
+        centroid = tri.mean(axis=1)
+        starts = [centroid] + [0.9 * tri[:, k] + 0.1 * centroid for k in range(3)]
+        # from just inside the surface, so that a ray does not hit its own triangle
+        offset = 1e-6 * edges[:, None]
+        hits = []
+        for s in starts:
+            rays = np.concatenate([s - offset * n, -n], axis=1).astype(np.float32)
+            t = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
+            hits.append(np.where(np.isfinite(t), t + offset[:, 0], np.inf))
+        return np.minimum(0.5 * np.min(hits, axis=0), edges)
 
     def _convex_parts(self) -> tuple:
         hulls = []
@@ -251,6 +310,8 @@ class Mesh(Shape):
             out.update(contact="parts", threshold=self.threshold, max_parts=self.max_parts)
             out["part_vertices"] = self.part_vertices
             out["parts"] = len(self.contact_parts())
+        if self.contact == "triangles":
+            out.update(contact="triangles", thickness=self.thickness)
         return out
 
 

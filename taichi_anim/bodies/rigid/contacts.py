@@ -18,6 +18,7 @@ from ...errors import DivergenceError
 from ...runtime import data_oriented
 from .detection import CASCADE_LEVELS, ContactDetection
 from .narrow_phase import NO_BODY
+from .obb_tree import STACK
 
 # Sweeps of the collision phase: an impact passes one contact per sweep against the contacts' order
 # (along it, all in one sweep).
@@ -88,6 +89,7 @@ class RigidContacts(ContactDetection):
         self.cascade_counts = make(self, "rc_cascade", ti.i32, len(CASCADE_LEVELS))
         self.inv_inertia = model.rigid_array(self, "rc_inv_inertia", dims=(3, 3))  # world, per body
         self.rot = model.rigid_array(self, "rc_rot", dims=(3, 3))  # each body's rotation at the step start
+        self.stack = make(self, "rc_stack", ti.i32, STACK, dims=(2,))  # the trees' walk (detection.py)
         self.prev_count[None] = 0
         # read at run time (not compile-time constants): a scene of another size compiles nothing new
         self.sizes = make(self, "rc_sizes", ti.i64, 3)

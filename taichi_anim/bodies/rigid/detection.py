@@ -79,6 +79,8 @@ class ContactDetection:
         mu, e = self._material(model, a, b)
         exact = model.geom_round[src] != 0 and model.geom_round[dst] == 0
         for k in range(model.geom_point_start[src], model.geom_point_start[src + 1]):
+            if not model.geom_contact_point[k]:
+                continue  # a mesh's vertex that another of its prisms holds, or a prism's inner corner
             p = xs + rs @ model.geom_points[k]
             radius = model.geom_point_radius[k]
             d, n = geom_sdf(model, dst, xd, rd, p)
@@ -310,67 +312,90 @@ class ContactDetection:
     @ti.func
     def _geoms(self, model: ti.template(), state: ti.template(), a, b, xa, ra, margin, skip_obb):
         """The contacts of bodies a (pose xa, ra) and b, part by part (one pair for simple shapes), and
-        (the pairs of parts whose bounding spheres meet, those given the exact test, 1 if any contact was
-        found else 0). The cascade goes on inside
-        bodies of several parts: each pair of parts passes its bounding spheres, then its OBBs (Gottschalk
-        et al.'s test, as between bodies; skipped with skip_obb), before the exact test."""
+        (the pairs of tree nodes whose bounding spheres met, the pairs of parts given the exact test, 1
+        if any contact was found else 0). The cascade goes on inside bodies of several parts, down their
+        trees of oriented boxes (obb_tree.py): a pair of nodes passes its bounding spheres, then its OBBs
+        (Gottschalk et al.'s test, as between bodies; their world AABBs instead with skip_obb), before
+        the larger node is opened, and a pair of leaves, before the exact test of their parts."""
         parted = (model.rigid_geom_start[a + 1] - model.rigid_geom_start[a] > 1) or (
             model.rigid_geom_start[b + 1] - model.rigid_geom_start[b] > 1
         )
         xb, rb = state.rigid_x[b], self.rot[b]
         found = self.found[None]
         near, exact = 0, 0
-        for ga in range(model.rigid_geom_start[a], model.rigid_geom_start[a + 1]):
-            pa, qa = model.geom_pose(ga, xa, ra)
-            for gb in range(model.rigid_geom_start[b], model.rigid_geom_start[b + 1]):
-                pb, qb = model.geom_pose(gb, xb, rb)
-                test = False
-                if (pa - pb).norm() <= model.geom_bound[ga] + model.geom_bound[gb] + margin:
-                    near += 1
-                    test = True
-                    if parted and not skip_obb:  # with one part each, the bodies' OBB test was this one
-                        test = obb_overlap(model.geom_half[ga], model.geom_half[gb], qa, qb, pb - pa, margin)
+        self.stack[0] = ti.Vector([model.rigid_node_start[a], model.rigid_node_start[b]])
+        top = 1
+        while top > 0:
+            top -= 1
+            na, nb = self.stack[top][0], self.stack[top][1]
+            ca, qa = xa + ra @ model.node_offset[na], ra @ model.node_rot[na]
+            cb, qb = xb + rb @ model.node_offset[nb], rb @ model.node_rot[nb]
+            if (ca - cb).norm() <= model.node_bound[na] + model.node_bound[nb] + margin:
+                near += 1
+                test = True
+                if parted:  # with one part each, the bodies' OBB test was this one
+                    ha, hb = model.node_half[na], model.node_half[nb]
+                    if skip_obb:
+                        test = not (ti.abs(cb - ca) > ti.abs(qa) @ ha + ti.abs(qb) @ hb + margin).any()
+                    else:
+                        test = obb_overlap(ha, hb, qa, qb, cb - ca, margin)
                 if test:
-                    exact += 1
-                    pair = (a, b, ga, gb)
-                    poses = (pa, qa, pb, qb)
-                    before = self.found[None]
-                    # Two polytopes: the closest points of two edges where an edge-edge axis separates
-                    # them least, else both geoms' vertices along the face normal that does (sat.py).
-                    # Each contact routine appears once in the kernel: a copy per case made the
-                    # detection compile seconds longer.
-                    polytopes = model.geom_round[ga] == 0 and model.geom_round[gb] == 0
-                    pair_n = ti.Vector.zero(float, 3)
-                    faces = ti.Vector.zero(float, 2)
-                    edge = False
-                    if polytopes:
-                        normal, sep, edge_wins, point = polytope_axis(model, ga, pa, qa, gb, pb, qb)
-                        edge = edge_wins
-                        if edge:
-                            if sep < margin:
-                                mu, e = self._material(model, a, b)
-                                zero = ti.Vector.zero(float, 3)
-                                self._add(a, b, ga, gb, FEATURES, 0, point, normal, sep, zero, mu, e)
-                        else:
-                            pair_n = normal
-                            faces = ti.Vector(
-                                [support(model, gb, pb, qb, normal), -support(model, ga, pa, qa, -normal)]
-                            )
-                    if not edge:
-                        for side in range(2):
-                            self._points_in(model, pair, poses, side, pair_n, faces[side], margin)
-                        # Face clipping where the vertices found are fewer than 4 (a heuristic: 4 found
-                        # are corners of the contact polygon, though not always all of them, e.g. two
-                        # quads overlapping in a hexagon), as on a stack or a pyramid, where clipping
-                        # found nothing new and took 13 % of a pyramid's step.
-                        if polytopes and self.found[None] - before < 4:
-                            for side in range(2):
-                                self._edges_clipped(model, pair, poses, side, pair_n, faces[side], margin)
-                    if not polytopes and self.found[None] == before:
-                        self._cores(model, pair, poses, margin)
-                    if ti.static(self.manifold_points):
-                        self._reduce(before)
+                    leaf_a, leaf_b = model.node_child[na][0] < 0, model.node_child[nb][0] < 0
+                    if leaf_a and leaf_b:
+                        exact += 1
+                        ga, gb = model.node_geom[na], model.node_geom[nb]
+                        self._exact(model, a, b, ga, gb, xa, ra, xb, rb, margin)
+                    else:
+                        # open the node that is no leaf, the larger one where neither is
+                        open_a = leaf_b or (not leaf_a and model.node_bound[na] >= model.node_bound[nb])
+                        for k in ti.static(range(2)):
+                            pair = ti.Vector([model.node_child[na][k], nb])
+                            if not open_a:
+                                pair = ti.Vector([na, model.node_child[nb][k]])
+                            self.stack[top] = pair
+                            top += 1
         return near, exact, ti.i32(self.found[None] > found)
+
+    @ti.func
+    def _exact(self, model: ti.template(), a, b, ga, gb, xa, ra, xb, rb, margin):
+        """The exact test of geom ga of body a (pose xa, ra) and geom gb of body b (xb, rb): its contacts.
+        Two polytopes: the closest points of two edges where an edge-edge axis separates them least,
+        else both geoms' vertices along the face normal that does (sat.py). Each contact routine appears
+        once in the kernel: a copy per case made the detection compile seconds longer."""
+        pa, qa = model.geom_pose(ga, xa, ra)
+        pb, qb = model.geom_pose(gb, xb, rb)
+        pair = (a, b, ga, gb)
+        poses = (pa, qa, pb, qb)
+        before = self.found[None]
+        polytopes = model.geom_round[ga] == 0 and model.geom_round[gb] == 0
+        pair_n = ti.Vector.zero(float, 3)
+        faces = ti.Vector.zero(float, 2)
+        edge = False
+        if polytopes:
+            normal, sep, edge_wins, point = polytope_axis(model, ga, pa, qa, gb, pb, qb)
+            edge = edge_wins
+            if edge:
+                if sep < margin:
+                    mu, e = self._material(model, a, b)
+                    zero = ti.Vector.zero(float, 3)
+                    self._add(a, b, ga, gb, FEATURES, 0, point, normal, sep, zero, mu, e)
+            else:
+                pair_n = normal
+                faces = ti.Vector([support(model, gb, pb, qb, normal), -support(model, ga, pa, qa, -normal)])
+        if not edge:
+            for side in range(2):
+                self._points_in(model, pair, poses, side, pair_n, faces[side], margin)
+            # Face clipping where the vertices found are fewer than 4 (a heuristic: 4 found are corners
+            # of the contact polygon, though not always all of them, e.g. two quads overlapping in a
+            # hexagon), as on a stack or a pyramid, where clipping found nothing new and took 13 % of a
+            # pyramid's step.
+            if polytopes and self.found[None] - before < 4:
+                for side in range(2):
+                    self._edges_clipped(model, pair, poses, side, pair_n, faces[side], margin)
+        if not polytopes and self.found[None] == before:
+            self._cores(model, pair, poses, margin)
+        if ti.static(self.manifold_points):
+            self._reduce(before)
 
     @ti.func
     def run_detect(self, model: ti.template(), state: ti.template(), t, h):
@@ -480,6 +505,8 @@ class ContactDetection:
             for g in range(model.rigid_geom_start[a], model.rigid_geom_start[a + 1]):
                 xg, rg = model.geom_pose(g, xa, ra)
                 for k in range(model.geom_point_start[g], model.geom_point_start[g + 1]):
+                    if not model.geom_contact_point[k]:
+                        continue
                     p = xg + rg @ model.geom_points[k]
                     radius = model.geom_point_radius[k]
                     d, n, vs = collider.contact(p, t)

@@ -87,7 +87,12 @@ class RigidModel:
         (geom_round: a core segment geom_seg0-geom_seg1 of radius geom_radius; else the planes geom_planes
         from geom_plane_start[g], and its edges geom_edges (ends and the normals of the two faces they
         join) from geom_edge_start[g]; geom_box: a box of half extents geom_half), and geom_bound (sphere
-        radius about its origin)."""
+        radius about its origin), geom_contact_point (per point: 1 where it is a contact point, tested
+        against other bodies and the colliders: a mesh's surface vertices once each, in the first prism
+        that has it, and no prism's inner corner). Per body its tree of
+        oriented boxes over its geoms (obb_tree.py), root node rigid_node_start[i]: per node its box
+        node_offset and node_rot (principal frame), node_half, node_bound (sphere about node_offset),
+        node_child (its children, -1 for a leaf), node_geom (a leaf's geom)."""
         geo = [g for x in bodies for g in x["geometry"]["geoms"]]
         points = np.concatenate([g["points"] for g in geo])
         planes = np.concatenate([g["planes"] for g in geo])
@@ -123,6 +128,8 @@ class RigidModel:
         put("geom_point_start", starts("points"), geoms + 1, ti.i32)
         put("geom_points", points, rows(len(points)), dims=(3,))
         put("geom_point_radius", np.concatenate([g["point_radius"] for g in geo]), rows(len(points)))
+        owned = np.concatenate([g["contact_points"] for g in geo]).astype(np.int32)
+        put("geom_contact_point", owned, rows(len(points)), ti.i32)
         put("geom_plane_start", starts("planes"), geoms + 1, ti.i32)
         put("geom_planes", planes, rows(len(planes)), dims=(4,))
         put("geom_edge_start", starts("edges"), geoms + 1, ti.i32)
@@ -134,9 +141,28 @@ class RigidModel:
         put("geom_seg1", [g["segment"][1] for g in geo], geoms, dims=(3,))
         put("geom_radius", [g["radius"] for g in geo], geoms)
         put("geom_bound", [g["bound"] for g in geo], geoms)
+        self._init_rigid_trees([x["geometry"]["tree"] for x in bodies], geom_starts, put, rows)
         self.rigid_reach = float(max(g["radius"] for g in geo)) + self.RIGID_MARGIN
         # whether a round core can pass through a polytope (contacts compile that case only then)
         self.rigid_round_and_polytopes = any(g["round"] for g in geo) and not all(g["round"] for g in geo)
+
+    def _init_rigid_trees(self, trees, geom_starts, put, rows) -> None:
+        """The bodies' trees (obb_tree.py) as fields, their node and geom indices made global."""
+        sizes = [len(t["bound"]) for t in trees]
+        start = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int32)
+        cat = lambda key: np.concatenate([t[key] for t in trees])
+        shift = lambda key, by: np.concatenate(
+            [np.where(t[key] >= 0, t[key] + s, -1) for t, s in zip(trees, by[:-1], strict=True)]
+        )
+        child, geom = shift("child", start), shift("geom", geom_starts)
+        nodes = rows(int(start[-1]))
+        put("rigid_node_start", start, self.rigid_capacity + 1, ti.i32)
+        put("node_offset", cat("offset"), nodes, dims=(3,))
+        put("node_rot", cat("rotation"), nodes, dims=(3, 3))
+        put("node_half", cat("half"), nodes, dims=(3,))
+        put("node_bound", cat("bound"), nodes)
+        put("node_child", child, nodes, ti.i32, dims=(2,))
+        put("node_geom", geom, nodes, ti.i32)
 
     @ti.func
     def geom_pose(self, g, x, r):
