@@ -48,66 +48,76 @@ def test_a_box_rests_on_the_floor_without_sinking_or_creeping():
     assert np.abs(snap.velocity).max() < 1e-6 and np.abs(snap.angular_velocity).max() < 1e-6
 
 
-def incline(theta, mu, seconds):
-    """A box released at rest on a plane tilted by theta about z: (distance slid down the slope)."""
-    n = (-np.sin(theta), np.cos(theta), 0.0)
-    down = np.array([-np.cos(theta), -np.sin(theta), 0.0])
-    c, s_ = np.cos(theta / 2), np.sin(theta / 2)
-    q = (0.0, 0.0, s_, c)  # the box turned with the slope
-    start = 0.1 * np.asarray(n)
-    m, s, integ = world(
-        [(BOX, dict(position=start, orientation=q, friction=mu))], plane=(n, mu, 0.0), contacts=None
-    )
-    snap = advance(m, s, integ, seconds)
-    return (snap.position[0] - start) @ down
+# (tilt theta, friction mu) of the inclines: two below the friction angle, two above it.
+STICKING = ((0.3, 0.5), (0.45, 0.5))
+SLIDING = ((0.6, 0.5), (0.5, 0.2))
 
 
-@pytest.mark.parametrize("theta, mu", [(0.3, 0.5), (0.45, 0.5)])
-def test_a_box_sticks_on_an_incline_below_the_friction_angle(theta, mu):
-    assert np.tan(theta) < mu
-    assert abs(incline(theta, mu, 1.0)) < 1e-3
-
-
-@pytest.mark.parametrize("theta, mu", [(0.6, 0.5), (0.5, 0.2)])
-def test_a_box_slides_down_an_incline_at_coulombs_acceleration(theta, mu):
-    # a = g (sin theta - mu cos theta) from rest: s(t) = a t^2 / 2
+def test_boxes_stick_below_the_friction_angle_and_slide_at_coulombs_acceleration_above():
+    # A box released at rest on each of four inclines, kinematic slabs tilted by theta about z, 3 m apart
+    # (one scene, compiled once), box and slab of friction mu: below the friction angle (tan theta < mu)
+    # it stays; above, it slides s(t) = a t^2 / 2 down the slope with a = g (sin theta - mu cos theta).
+    slab = ta.shapes.Box((2.0, 0.1, 0.5))
+    bodies, starts, downs = [], [], []
+    for k, (theta, mu) in enumerate(STICKING + SLIDING):
+        n = np.array([-np.sin(theta), np.cos(theta), 0.0])
+        down = np.array([-np.cos(theta), -np.sin(theta), 0.0])
+        turn = (0.0, 0.0, np.sin(theta / 2), np.cos(theta / 2))  # slab and box turned with the slope
+        centre = np.array([0.0, 0.0, 3.0 * k])
+        start = centre + 0.2 * n - 1.5 * down  # on the slab's top face, near its upper end
+        bodies += [
+            (slab, dict(position=tuple(centre), orientation=turn, kinematic=True, friction=mu)),
+            (BOX, dict(position=tuple(start), orientation=turn, friction=mu)),
+        ]
+        starts.append(start)
+        downs.append(down)
+    m, s, integ = world(bodies)
     t = 1.0
-    expected = 0.5 * G * (np.sin(theta) - mu * np.cos(theta)) * t * t
-    assert incline(theta, mu, t) == pytest.approx(expected, rel=0.02)
+    snap = advance(m, s, integ, t)
+    slid = [(snap.position[2 * k + 1] - starts[k]) @ downs[k] for k in range(4)]
+    for (theta, mu), distance in zip(STICKING, slid[:2], strict=True):
+        assert np.tan(theta) < mu
+        assert abs(distance) < 1e-3
+    for (theta, mu), distance in zip(SLIDING, slid[2:], strict=True):
+        expected = 0.5 * G * (np.sin(theta) - mu * np.cos(theta)) * t * t
+        assert distance == pytest.approx(expected, rel=0.02)
 
 
-@pytest.mark.parametrize("e", [0.0, 0.5, 0.9])
-def test_a_ball_bounces_at_e_times_its_impact_speed(e):
-    # Dropped from 1 m above contact: impact speed sqrt(2 g h); rebound e times that.
+def test_balls_bounce_at_e_times_their_impact_speed():
+    # Dropped from 1 m above contact: impact speed sqrt(2 g h); rebound e times that. Three balls side by
+    # side on one frictionless floor of restitution 0 (a contact takes the larger e of its two sides), e
+    # = 0, 0.5 and 0.9: one scene, compiled once.
+    restitutions = (0.0, 0.5, 0.9)
     ball = ta.shapes.Sphere(0.1)
-    m, s, integ = world([(ball, dict(position=(0, 1.1, 0), restitution=e))], plane=((0, 1, 0), 0.0, e))
+    balls = [(ball, dict(position=(x, 1.1, 0), restitution=e)) for x, e in enumerate(restitutions)]
+    m, s, integ = world(balls, plane=((0, 1, 0), 0.0, 0.0))
     impact = np.sqrt(2 * G * 1.0)
     dt = 1 / 240
-    best = -np.inf
+    best = np.full(3, -np.inf)
     for _ in range(round(0.6 / dt)):  # lands at 0.45 s; the rebound peaks later
         integ.step(m, s, dt)
-        best = max(best, s.rigid_snapshot().velocity[0][1])
-    assert best == pytest.approx(e * impact, abs=0.02 * impact)
+        best = np.maximum(best, s.rigid_snapshot().velocity[:, 1])
+    np.testing.assert_allclose(best, np.multiply(restitutions, impact), atol=0.02 * impact)
 
 
-@pytest.mark.parametrize("e", [1.0, 0.3])
-def test_head_on_spheres_keep_momentum_and_part_at_e_times_their_approach(e):
+def test_head_on_spheres_keep_momentum_and_part_at_e_times_their_approach():
     # Two spheres of different density, no gravity: after the impact
-    # v1' - v2' = -e (v1 - v2) and m1 v1' + m2 v2' = m1 v1 + m2 v2 (Newton's law of restitution).
-    a = (
-        ta.shapes.Sphere(0.1),
-        dict(position=(-0.5, 0, 0), velocity=(2.0, 0, 0), density=1000.0, restitution=e),
-    )
-    b = (
-        ta.shapes.Sphere(0.1),
-        dict(position=(0.5, 0, 0), velocity=(-1.0, 0, 0), density=3000.0, restitution=e),
-    )
-    m, s, integ = world([a, b], gravity=False, contacts=dict(bounce_speed=0.1))
-    m1, m2 = m.rigid_mass
+    # v1' - v2' = -e (v1 - v2) and m1 v1' + m2 v2' = m1 v1 + m2 v2 (Newton's law of restitution). Two
+    # such pairs 5 m apart, e = 1 and 0.3, in one scene.
+    pairs = []
+    ball = ta.shapes.Sphere(0.1)
+    for z, e in ((0.0, 1.0), (5.0, 0.3)):
+        pairs += [
+            (ball, dict(position=(-0.5, 0, z), velocity=(2.0, 0, 0), density=1000.0, restitution=e)),
+            (ball, dict(position=(0.5, 0, z), velocity=(-1.0, 0, 0), density=3000.0, restitution=e)),
+        ]
+    m, s, integ = world(pairs, gravity=False, contacts=dict(bounce_speed=0.1))
     snap = advance(m, s, integ, 1.0)
-    v1, v2 = snap.velocity[:, 0]
-    np.testing.assert_allclose(m1 * v1 + m2 * v2, m1 * 2.0 + m2 * -1.0, rtol=1e-12)
-    assert v1 - v2 == pytest.approx(-e * 3.0, rel=0.01)
+    for k, e in ((0, 1.0), (2, 0.3)):
+        m1, m2 = m.rigid_mass[k : k + 2]
+        v1, v2 = snap.velocity[k : k + 2, 0]
+        np.testing.assert_allclose(m1 * v1 + m2 * v2, m1 * 2.0 + m2 * -1.0, rtol=1e-12)
+        assert v1 - v2 == pytest.approx(-e * 3.0, rel=0.01)
     np.testing.assert_allclose(snap.velocity[:, 1:], 0.0, atol=1e-12)
 
 

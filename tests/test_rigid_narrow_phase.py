@@ -366,6 +366,31 @@ def test_a_capsule_rests_across_another():
     assert np.abs(snaps[-1].position[1][[0, 2]]).max() < 1e-6
 
 
+def test_capsules_whose_cores_meet_part_along_their_common_normal():
+    # Cores that meet have no closest-point direction (GJK's distance is 0), and neither capsule's end
+    # points touch the other. Crossed at right angles, at one height: they part across both cores (y),
+    # until the cores are the two radii apart. End to end on one line, overlapping by 0.2 m: they part
+    # along it, to touching ends.
+    capsule = ta.shapes.Capsule(0.1, 0.5)
+    along_x = quat_about((0, 0, 1), np.pi / 2)
+    along_z = quat_about((1, 0, 0), np.pi / 2)
+    snaps = drop(
+        [
+            (capsule, dict(position=(0, 0, 0), orientation=along_x, kinematic=True)),
+            (capsule, dict(position=(0, 0, 0), orientation=along_z)),
+            (capsule, dict(position=(5, 0, 0), orientation=along_x, kinematic=True)),
+            (capsule, dict(position=(5 + 1.0, 0, 0), orientation=along_x)),
+        ],
+        0.5,
+        gravity=False,
+    )
+    crossed, in_line = snaps[-1].position[1], snaps[-1].position[3]
+    assert abs(crossed[1]) == pytest.approx(0.2, abs=0.006)  # within the slop
+    np.testing.assert_allclose(crossed[[0, 2]], 0.0, atol=1e-9)
+    assert in_line[0] - 5 == pytest.approx(1.0 + 0.2, abs=0.006)
+    np.testing.assert_allclose(in_line[1:], 0.0, atol=1e-9)
+
+
 @pytest.mark.parametrize("gap", [0.08, 0.06])
 def test_a_sphere_beside_a_boxs_edge_meets_it_at_its_exact_distance(gap):
     # Centre `gap` past both faces at a box's edge: the exact distance is gap sqrt(2), the faces' planes

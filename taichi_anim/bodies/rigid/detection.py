@@ -78,12 +78,15 @@ class ContactDetection:
             xs, rs, xd, rd = xb, rb, xa, ra
         mu, e = self._material(model, a, b)
         exact = model.geom_round[src] != 0 and model.geom_round[dst] == 0
+        on_core = ti.static(64.0 * float(np.finfo(np_float()).eps)) * (xd.norm() + model.geom_bound[dst])
         for k in range(model.geom_point_start[src], model.geom_point_start[src + 1]):
             if not model.geom_contact_point[k]:
                 continue  # a mesh's vertex that another of its prisms holds, or a prism's inner corner
             p = xs + rs @ model.geom_points[k]
             radius = model.geom_point_radius[k]
             d, n = geom_sdf(model, dst, xd, rd, p)
+            if model.geom_round[dst] != 0 and d + model.geom_radius[dst] <= on_core:
+                continue  # on the other's core, to round-off: no way out known here (_cores_crossing)
             if exact and d > 0.0 and d - radius < margin:
                 d, _, closest = gjk(model, -1, p, rs, dst, xd, rd)
                 if d > 0.0:
@@ -266,7 +269,8 @@ class ContactDetection:
     def _cores(self, model: ti.template(), pair, poses, margin):
         """One contact at the closest points of two geoms' cores (GJK), for a round shape that meets the
         other with none of its points: a capsule across another, or across a box's edge; where the cores
-        meet, a round core through a polytope (_core_through)."""
+        meet, two round cores crossing (_cores_crossing) or a round core through a polytope
+        (_core_through)."""
         a, b, ga, gb = pair
         xa, ra, xb, rb = poses
         dist, pa, pb = gjk(model, ga, xa, ra, gb, xb, rb)
@@ -277,16 +281,50 @@ class ContactDetection:
                 mu, e = self._material(model, a, b)
                 point = pa - model.geom_radius[ga] * n
                 self._add(a, b, ga, gb, FEATURES, 0, point, n, sep, ti.Vector.zero(float, 3), mu, e)
+        elif model.geom_round[ga] and model.geom_round[gb]:
+            self._cores_crossing(model, pair, poses, pa, margin)
         elif ti.static(model.rigid_round_and_polytopes):
             if model.geom_round[ga] != model.geom_round[gb]:
                 self._core_through(model, pair, poses, margin)
 
     @ti.func
+    def _cores_crossing(self, model: ti.template(), pair, poses, meet, margin):
+        """Two round shapes whose cores meet (at `meet`): two capsules pushed across each other. They part
+        along the common normal of their cores, n = d_a x d_b (the direction that moves two crossing
+        lines apart; where the cores are parallel, the centres' offset across a's core, or along it for
+        cores on one line), by the cores' overlap along n plus both radii: one contact at the meeting
+        point."""
+        a, b, ga, gb = pair
+        xa, ra, xb, rb = poses
+        a0, a1 = xa + ra @ model.geom_seg0[ga], xa + ra @ model.geom_seg1[ga]
+        b0, b1 = xb + rb @ model.geom_seg0[gb], xb + rb @ model.geom_seg1[gb]
+        da, db = a1 - a0, b1 - b0
+        offset = 0.5 * (a0 + a1 - b0 - b1)  # from b's core centre to a's
+        n = da.cross(db)
+        if n.norm_sqr() <= 1e-12 * da.norm_sqr() * db.norm_sqr():  # parallel, or a sphere's point core
+            axis = da if da.norm_sqr() > 0.0 else db
+            n = offset
+            if axis.norm_sqr() > 0.0:
+                n = offset - axis * axis.dot(offset) / axis.norm_sqr()
+            if n.norm_sqr() <= 1e-12 * offset.norm_sqr():
+                n = offset  # on one line: apart along it
+        if n.norm_sqr() == 0.0:
+            n = ti.Vector([0.0, 1.0, 0.0], float)  # centres on one line along the cores: any way out
+        n = n.normalized()
+        if n.dot(offset) < 0.0:
+            n = -n
+        core = ti.min(n.dot(a0), n.dot(a1)) - ti.max(n.dot(b0), n.dot(b1))
+        sep = core - model.geom_radius[ga] - model.geom_radius[gb]
+        if sep < margin:
+            mu, e = self._material(model, a, b)
+            point = meet - model.geom_radius[ga] * n
+            self._add(a, b, ga, gb, FEATURES, 0, point, n, sep, ti.Vector.zero(float, 3), mu, e)
+
+    @ti.func
     def _core_through(self, model: ti.template(), pair, poses, margin):
         """A round shape whose core passes through a polytope with neither end point within reach of it
         (a capsule across a thin wall, pushed in): contacts at both ends of the core along the shortest
-        way out (sat.py's segment_axis, the depth EPA would find), each its own gap along that axis; two
-        round cores that meet are left to their end points' contacts."""
+        way out (sat.py's segment_axis, the depth EPA would find), each its own gap along that axis."""
         a, b, ga, gb = pair
         xa, ra, xb, rb = poses
         rnd, poly = ga, gb
