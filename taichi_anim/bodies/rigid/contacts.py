@@ -90,6 +90,7 @@ class RigidContacts(ContactDetection):
         self.inv_inertia = model.rigid_array(self, "rc_inv_inertia", dims=(3, 3))  # world, per body
         self.rot = model.rigid_array(self, "rc_rot", dims=(3, 3))  # each body's rotation at the step start
         self.stack = make(self, "rc_stack", ti.i32, STACK, dims=(2,))  # the trees' walk (detection.py)
+        self._init_broad_phase(model)
         self.prev_count[None] = 0
         # read at run time (not compile-time constants): a scene of another size compiles nothing new
         self.sizes = make(self, "rc_sizes", ti.i64, 3)
