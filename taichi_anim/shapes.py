@@ -252,13 +252,14 @@ class Mesh(Shape):
         if self.thickness is not None:
             depth = np.full(len(tri), float(self.thickness))
         else:
-            depth = self._inner_depth(tri, n, edges)
+            depth = self._inner_depth(tri, n, edges, np.flatnonzero(keep))
         return np.concatenate([tri, tri - depth[:, None, None] * n[:, None, :]], axis=1)
 
-    def _inner_depth(self, tri, n, edges) -> np.ndarray:
-        """Per triangle, half the distance to the surface opposite it (rays cast inwards along -n from
-        its centroid and from points near its corners; the least hit), at most its longest edge: a
-        prism that stays inside the mesh, and compact."""
+    def _inner_depth(self, tri, n, edges, faces) -> np.ndarray:
+        """Per triangle (face index `faces`), half the distance to the surface opposite it (rays cast
+        inwards along -n from its centroid and from points near its corners; the least hit), at most its
+        longest edge: a prism that stays inside the mesh, and compact. Open3D casts in float32: the rays
+        start a few float32 steps inside, and a hit on the triangle itself does not count."""
         import open3d as o3d
 
         scene = o3d.t.geometry.RaycastingScene()
@@ -267,13 +268,15 @@ class Mesh(Shape):
         )
         centroid = tri.mean(axis=1)
         starts = [centroid] + [0.9 * tri[:, k] + 0.1 * centroid for k in range(3)]
-        # from just inside the surface, so that a ray does not hit its own triangle
-        offset = 1e-6 * edges[:, None]
+        size = float(np.abs(self.vertices).max())
+        offset = (1e-6 * edges + 64 * np.finfo(np.float32).eps * size)[:, None]
         hits = []
         for s in starts:
             rays = np.concatenate([s - offset * n, -n], axis=1).astype(np.float32)
-            t = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
-            hits.append(np.where(np.isfinite(t), t + offset[:, 0], np.inf))
+            cast = scene.cast_rays(o3d.core.Tensor(rays))
+            t = cast["t_hit"].numpy().astype(np.float64)
+            own = cast["primitive_ids"].numpy().astype(np.int64) == faces
+            hits.append(np.where(np.isfinite(t) & ~own, t + offset[:, 0], np.inf))
         return np.minimum(0.5 * np.min(hits, axis=0), edges)
 
     def _convex_parts(self) -> tuple:

@@ -106,6 +106,14 @@ def test_prisms_reach_inwards_inside_the_mesh_and_the_tree_holds_them():
     assert depth == math.ceil(math.log2(576)) + 1 and 2 * depth < STACK
 
 
+def test_prisms_of_a_small_mesh_far_from_the_origin_reach_half_way_through():
+    # A 2 cm cube 100 m out: Open3D's rays run in float32 (steps of 8e-6 m there), and a ray that hit
+    # its own triangle would make a prism flat. Each prism reaches half the cube's width, to float32.
+    v, f = ta.shapes.Box((0.01, 0.01, 0.01)).triangles()
+    prisms = ta.shapes.Mesh(np.asarray(v) + [100.0, 50.0, 0.0], f, contact="triangles").contact_prisms()
+    np.testing.assert_allclose(np.linalg.norm(prisms[:, 3] - prisms[:, 0], axis=1), 0.01, atol=5e-5)
+
+
 def test_a_mesh_refuses_a_bad_thickness():
     v, f = torus()
     with pytest.raises(ParameterError, match="thickness"):

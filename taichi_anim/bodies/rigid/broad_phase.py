@@ -92,6 +92,8 @@ class BroadPhase:
         for k in range(n):
             i = self.sweep_order[k]
             m = k + 1
+            if found > ti.static(self.pair_capacity):
+                m = n  # the list overflowed: every pair is tested anyway
             while m < n:
                 j = self.sweep_order[m]
                 if self.sweep_lo[j] > self.sweep_hi[i]:
@@ -99,8 +101,8 @@ class BroadPhase:
                 # and along the other two axes
                 apart = ti.abs(state.rigid_x[j] - state.rigid_x[i]) > self.sweep_grow[i] + self.sweep_grow[j]
                 apart[axis] = False
-                if apart.any():
-                    m += 1
+                if apart.any() or (model.rigid_inv_mass[i] == 0.0 and model.rigid_inv_mass[j] == 0.0):
+                    m += 1  # apart, or two bodies that nothing moves
                     continue
                 if found < ti.static(self.pair_capacity):
                     self.pair_a[found] = ti.min(i, j)

@@ -86,12 +86,14 @@ class ContactDetection(BroadPhase):
             p = xs + rs @ model.geom_points[k]
             radius = model.geom_point_radius[k]
             d, n = geom_sdf(model, dst, xd, rd, p)
-            if model.geom_round[dst] != 0 and d + model.geom_radius[dst] <= on_core:
-                continue  # on the other's core, to round-off: no way out known here (_cores_crossing)
-            if exact and d > 0.0 and d - radius < margin:
-                d, _, closest = gjk(model, -1, p, rs, dst, xd, rd)
-                if d > 0.0:
-                    n = (p - closest) / d
+            if ti.static(model.rigid_has_round):
+                if model.geom_round[dst] != 0 and d + model.geom_radius[dst] <= on_core:
+                    continue  # on the other's core, to round-off: no way out known here (_cores_crossing)
+            if ti.static(model.rigid_round_and_polytopes):
+                if exact and d > 0.0 and d - radius < margin:
+                    d, _, closest = gjk(model, -1, p, rs, dst, xd, rd)
+                    if d > 0.0:
+                        n = (p - closest) / d
             sep = d - radius
             if sep < margin:
                 normal = n if side == 0 else -n
@@ -362,37 +364,44 @@ class ContactDetection(BroadPhase):
         xb, rb = state.rigid_x[b], self.rot[b]
         found = self.found[None]
         near, exact = 0, 0
-        self.stack[0] = ti.Vector([model.rigid_node_start[a], model.rigid_node_start[b]])
-        top = 1
-        while top > 0:
-            top -= 1
-            na, nb = self.stack[top][0], self.stack[top][1]
-            ca, qa = xa + ra @ model.node_offset[na], ra @ model.node_rot[na]
-            cb, qb = xb + rb @ model.node_offset[nb], rb @ model.node_rot[nb]
-            if (ca - cb).norm() <= model.node_bound[na] + model.node_bound[nb] + margin:
-                near += 1
-                test = True
-                if parted:  # with one part each, the bodies' OBB test was this one
-                    ha, hb = model.node_half[na], model.node_half[nb]
-                    if skip_obb:
-                        test = not (ti.abs(cb - ca) > ti.abs(qa) @ ha + ti.abs(qb) @ hb + margin).any()
-                    else:
-                        test = obb_overlap(ha, hb, qa, qb, cb - ca, margin)
-                if test:
-                    leaf_a, leaf_b = model.node_child[na][0] < 0, model.node_child[nb][0] < 0
-                    if leaf_a and leaf_b:
-                        exact += 1
-                        ga, gb = model.node_geom[na], model.node_geom[nb]
-                        self._exact(model, a, b, ga, gb, xa, ra, xb, rb, margin)
-                    else:
-                        # open the node that is no leaf, the larger one where neither is
-                        open_a = leaf_b or (not leaf_a and model.node_bound[na] >= model.node_bound[nb])
-                        for k in ti.static(range(2)):
-                            pair = ti.Vector([model.node_child[na][k], nb])
-                            if not open_a:
-                                pair = ti.Vector([na, model.node_child[nb][k]])
-                            self.stack[top] = pair
-                            top += 1
+        if ti.static(model.rigid_parted):
+            self.stack[0] = ti.Vector([model.rigid_node_start[a], model.rigid_node_start[b]])
+            top = 1
+            while top > 0:
+                top -= 1
+                na, nb = self.stack[top][0], self.stack[top][1]
+                ca, qa = xa + ra @ model.node_offset[na], ra @ model.node_rot[na]
+                cb, qb = xb + rb @ model.node_offset[nb], rb @ model.node_rot[nb]
+                if (ca - cb).norm() <= model.node_bound[na] + model.node_bound[nb] + margin:
+                    near += 1
+                    test = True
+                    if parted:  # with one part each, the bodies' OBB test was this one
+                        ha, hb = model.node_half[na], model.node_half[nb]
+                        if skip_obb:
+                            test = not (ti.abs(cb - ca) > ti.abs(qa) @ ha + ti.abs(qb) @ hb + margin).any()
+                        else:
+                            test = obb_overlap(ha, hb, qa, qb, cb - ca, margin)
+                    if test:
+                        leaf_a, leaf_b = model.node_child[na][0] < 0, model.node_child[nb][0] < 0
+                        if leaf_a and leaf_b:
+                            exact += 1
+                            ga, gb = model.node_geom[na], model.node_geom[nb]
+                            self._exact(model, a, b, ga, gb, xa, ra, xb, rb, margin)
+                        else:
+                            # open the node that is no leaf, the larger one where neither is
+                            open_a = leaf_b or (not leaf_a and model.node_bound[na] >= model.node_bound[nb])
+                            for k in ti.static(range(2)):
+                                pair = ti.Vector([model.node_child[na][k], nb])
+                                if not open_a:
+                                    pair = ti.Vector([na, model.node_child[nb][k]])
+                                self.stack[top] = pair
+                                top += 1
+        else:  # one part each: the bodies' OBB test was the parts'
+            ga, gb = model.rigid_geom_start[a], model.rigid_geom_start[b]
+            pa, pb = xa + ra @ model.geom_offset[ga], xb + rb @ model.geom_offset[gb]
+            if (pa - pb).norm() <= model.geom_bound[ga] + model.geom_bound[gb] + margin:
+                near, exact = 1, 1
+                self._exact(model, a, b, ga, gb, xa, ra, xb, rb, margin)
         return near, exact, ti.i32(self.found[None] > found)
 
     @ti.func
@@ -431,8 +440,9 @@ class ContactDetection(BroadPhase):
             if polytopes and self.found[None] - before < 4:
                 for side in range(2):
                     self._edges_clipped(model, pair, poses, side, pair_n, faces[side], margin)
-        if not polytopes and self.found[None] == before:
-            self._cores(model, pair, poses, margin)
+        if ti.static(model.rigid_has_round):  # else every pair is two polytopes
+            if not polytopes and self.found[None] == before:
+                self._cores(model, pair, poses, margin)
         if ti.static(self.manifold_points):
             self._reduce(before)
 
@@ -457,7 +467,8 @@ class ContactDetection(BroadPhase):
             if model.rigid_inv_mass[i] == 0.0:
                 fixed += 1
         n = model.live_rigid()
-        pairs = n * (n - 1) // 2 - fixed * (fixed - 1) // 2
+        pairs64 = ti.i64(n) * (n - 1) // 2 - ti.i64(fixed) * (fixed - 1) // 2
+        pairs = ti.i32(ti.min(pairs64, 2147483647))  # the counts are i32
         spheres, aabbs, obbs, touching, part_spheres, exact_tests = 0, 0, 0, 0, 0, 0
         ti.loop_config(serialize=True)
         for a in range(model.live_rigid()):

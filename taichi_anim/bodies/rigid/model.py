@@ -48,6 +48,7 @@ class RigidModel:
         self.rigid_live = self.rigid_inv_mass = self.rigid_inv_moments = None
         self.rigid_reach = 0.0
         self.rigid_round_and_polytopes = False
+        self.rigid_has_round = self.rigid_parted = False
         if not b:
             return
         if self.size_buckets:
@@ -145,6 +146,18 @@ class RigidModel:
         self.rigid_reach = float(max(g["radius"] for g in geo)) + self.RIGID_MARGIN
         # whether a round core can pass through a polytope (contacts compile that case only then)
         self.rigid_round_and_polytopes = any(g["round"] for g in geo) and not all(g["round"] for g in geo)
+        # compile-time switches on scene content: round cores' code only where there are round shapes,
+        # the walk down trees of parts only where a body has several (each made a box scene's first step
+        # compile seconds longer)
+        self.rigid_has_round = any(g["round"] for g in geo)
+        self.rigid_parted = any(len(x["geometry"]["geoms"]) > 1 for x in bodies)
+        # contact keys (contacts.py) are i64 products of geoms, geoms + colliders, sides and features
+        features = max(len(points), 2 * len(edges), 1)
+        if len(geo) * (len(geo) + 64) * 5 * features >= 1 << 62:
+            raise ParameterError(
+                f"rigid bodies: {len(geo)} convex parts with {features} points or edge ends are more than "
+                "the contact keys can tell apart (decimate the triangle meshes)"
+            )
 
     def _init_rigid_trees(self, trees, geom_starts, put, rows) -> None:
         """The bodies' trees (obb_tree.py) as fields, their node and geom indices made global."""
