@@ -255,6 +255,38 @@ class Mesh(Shape):
             depth = self._inner_depth(tri, n, edges, np.flatnonzero(keep))
         return np.concatenate([tri, tri - depth[:, None, None] * n[:, None, :]], axis=1)
 
+    def contact_active_edges(self):
+        """Per triangle of contact_prisms() (T,3) bool: whether its edge k (corner k to corner k + 1)
+        is a convex crease, the neighbour across it turned away by more than 1 degree (Bullet's and
+        Jolt's active edges); None unless contact="triangles". A contact normal may point out of a
+        triangle's side only across an active edge: a flat or concave neighbour lies there."""
+        if self.contact != "triangles":
+            return None
+        v, f = self.vertices, self.faces
+        tri = v[f]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        area2 = np.linalg.norm(n, axis=1)
+        edges = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
+        keep = area2 > 1e-12 * edges**2
+        n = n / np.maximum(area2, 1e-300)[:, None]
+        # each directed edge (a, b) of a closed, consistently wound mesh has its twin (b, a) in the neighbour
+        twin = {}
+        for t, face in enumerate(f):
+            for k in range(3):
+                twin[(int(face[k]), int(face[(k + 1) % 3]))] = t
+        active = np.zeros((len(f), 3), dtype=bool)
+        for t, face in enumerate(f):
+            for k in range(3):
+                a, b = int(face[k]), int(face[(k + 1) % 3])
+                other = twin.get((b, a), -1)
+                if other < 0:
+                    active[t, k] = True
+                    continue
+                far = [x for x in f[other] if x not in (a, b)][0]
+                below = n[t] @ (v[far] - v[a]) < 0.0  # the neighbour bends away: convex
+                active[t, k] = bool(below and n[t] @ n[other] < np.cos(np.radians(1.0)))
+        return active[keep]
+
     def _inner_depth(self, tri, n, edges, faces) -> np.ndarray:
         """Per triangle (face index `faces`), half the distance to the surface opposite it (rays cast
         inwards along -n from its centroid and from points near its corners; the least hit), at most its

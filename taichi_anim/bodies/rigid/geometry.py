@@ -125,6 +125,7 @@ def _prism_geometry(prism: np.ndarray) -> dict:
         half_extents=np.abs(local).max(axis=0),
         offset=centre,
         rotation=rotation,
+        prism=True,
     )
 
 
@@ -137,6 +138,8 @@ def contact_geometry(shape, com: np.ndarray, axes: np.ndarray) -> dict:
     prisms = shape.contact_prisms()  # a mesh's triangles as prisms; None: not so
     if prisms is not None:
         geoms = [_prism_geometry(to_principal(p, com, axes)) for p in prisms]
+        for g, active in zip(geoms, shape.contact_active_edges(), strict=True):
+            g["active_edges"] = int(sum(1 << k for k in range(3) if active[k]))
         # As contact points (against other bodies and the colliders), each vertex of the surface once,
         # in the first prism that has it, and no inner corner: a vertex shared by six triangles would
         # otherwise be six contacts against each part it meets.
@@ -159,6 +162,8 @@ def contact_geometry(shape, com: np.ndarray, axes: np.ndarray) -> dict:
     reach, extent = 0.0, np.zeros(3)
     for g in geoms:
         g.setdefault("contact_points", np.ones(len(g["points"]), dtype=bool))
+        g.setdefault("prism", False)
+        g.setdefault("active_edges", 0)
         g["bound"] = float(np.linalg.norm(g["points"], axis=1).max() + g["radius"])
         placed = g["points"] @ g["rotation"].T + g["offset"]
         reach = max(reach, float(np.linalg.norm(placed, axis=1).max() + g["radius"]))

@@ -48,7 +48,7 @@ class RigidModel:
         self.rigid_live = self.rigid_inv_mass = self.rigid_inv_moments = None
         self.rigid_reach = 0.0
         self.rigid_round_and_polytopes = False
-        self.rigid_has_round = self.rigid_parted = False
+        self.rigid_has_round = self.rigid_parted = self.rigid_prisms = False
         if not b:
             return
         if self.size_buckets:
@@ -87,7 +87,10 @@ class RigidModel:
         geom_point_start[g] to geom_point_start[g + 1], with geom_point_radius), its signed distance
         (geom_round: a core segment geom_seg0-geom_seg1 of radius geom_radius; else the planes geom_planes
         from geom_plane_start[g], and its edges geom_edges (ends and the normals of the two faces they
-        join) from geom_edge_start[g]; geom_box: a box of half extents geom_half), and geom_bound (sphere
+        join) from geom_edge_start[g]; geom_box: a box of half extents geom_half; geom_prism: a mesh's
+        triangle as a prism (its surface's normal along its frame's z, planes top, bottom, then the sides
+        of edges 0-1, 1-2, 2-0), geom_active: bit k set where its edge k is an active edge), and
+        geom_bound (sphere
         radius about its origin), geom_contact_point (per point: 1 where it is a contact point, tested
         against other bodies and the colliders: a mesh's surface vertices once each, in the first prism
         that has it, and no prism's inner corner). Per body its tree of
@@ -137,6 +140,8 @@ class RigidModel:
         put("geom_edges", edges, rows(len(edges)), dims=(4, 3))
         put("geom_round", [int(g["round"]) for g in geo], geoms, ti.i32)
         put("geom_box", [int(g["box"]) for g in geo], geoms, ti.i32)
+        put("geom_prism", [int(g["prism"]) for g in geo], geoms, ti.i32)
+        put("geom_active", [g["active_edges"] for g in geo], geoms, ti.i32)
         put("geom_half", [g["half_extents"] for g in geo], geoms, dims=(3,))
         put("geom_seg0", [g["segment"][0] for g in geo], geoms, dims=(3,))
         put("geom_seg1", [g["segment"][1] for g in geo], geoms, dims=(3,))
@@ -151,6 +156,7 @@ class RigidModel:
         # compile seconds longer)
         self.rigid_has_round = any(g["round"] for g in geo)
         self.rigid_parted = any(len(x["geometry"]["geoms"]) > 1 for x in bodies)
+        self.rigid_prisms = any(g["prism"] for g in geo)
         # contact keys (contacts.py) are i64 products of geoms, geoms + colliders, sides and features
         features = max(len(points), 2 * len(edges), 1)
         if len(geo) * (len(geo) + 64) * 5 * features >= 1 << 62:
