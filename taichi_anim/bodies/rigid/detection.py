@@ -452,7 +452,8 @@ class ContactDetection(BroadPhase):
     def _exact(self, model: ti.template(), a, b, ga, gb, xa, ra, xb, rb, margin):
         """The exact test of geom ga of body a (pose xa, ra) and geom gb of body b (xb, rb): its contacts.
         Two polytopes: the closest points of two edges where an edge-edge axis separates them least,
-        else both geoms' vertices along the face normal that does (sat.py). Each contact routine appears
+        else both geoms' vertices along the face normal that does (sat.py); none where one is a mesh's
+        triangle and the axis runs inside the mesh's surface (_inactive). Each contact routine appears
         once in the kernel: a copy per case made the detection compile seconds longer."""
         pa, qa = model.geom_pose(ga, xa, ra)
         pb, qb = model.geom_pose(gb, xb, rb)
