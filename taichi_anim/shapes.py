@@ -242,13 +242,8 @@ class Mesh(Shape):
         none."""
         if self.contact != "triangles":
             return None
-        v, f = self.vertices, self.faces
-        tri = v[f]
-        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        area2 = np.linalg.norm(n, axis=1)
-        edges = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
-        keep = area2 > 1e-12 * edges**2
-        tri, n, edges = tri[keep], n[keep] / area2[keep, None], edges[keep]
+        keep, n, edges = self._triangles_kept()
+        tri, n, edges = self.vertices[self.faces[keep]], n[keep], edges[keep]
         if self.thickness is not None:
             depth = np.full(len(tri), float(self.thickness))
         else:
@@ -262,13 +257,8 @@ class Mesh(Shape):
         triangle's side only across an active edge: a flat or concave neighbour lies there."""
         if self.contact != "triangles":
             return None
+        keep, n, _ = self._triangles_kept()
         v, f = self.vertices, self.faces
-        tri = v[f]
-        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        area2 = np.linalg.norm(n, axis=1)
-        edges = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
-        keep = area2 > 1e-12 * edges**2
-        n = n / np.maximum(area2, 1e-300)[:, None]
         # each directed edge (a, b) of a closed, consistently wound mesh has its twin (b, a) in the neighbour
         twin = {}
         for t, face in enumerate(f):
@@ -286,6 +276,14 @@ class Mesh(Shape):
                 below = n[t] @ (v[far] - v[a]) < 0.0  # the neighbour bends away: convex
                 active[t, k] = bool(below and n[t] @ n[other] < np.cos(np.radians(1.0)))
         return active[keep]
+
+    def _triangles_kept(self):
+        """(which faces are no sliver (F,) bool, their unit normals (F,3), their longest edges (F,))."""
+        tri = self.vertices[self.faces]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        area2 = np.linalg.norm(n, axis=1)
+        edges = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
+        return area2 > 1e-12 * edges**2, n / np.maximum(area2, 1e-300)[:, None], edges
 
     def _inner_depth(self, tri, n, edges, faces) -> np.ndarray:
         """Per triangle (face index `faces`), half the distance to the surface opposite it (rays cast
