@@ -90,10 +90,9 @@ class RigidModel:
         join) from geom_edge_start[g]; geom_box: a box of half extents geom_half; geom_prism: a mesh's
         triangle as a prism (its surface's normal along its frame's z, planes top, bottom, then the sides
         of edges 0-1, 1-2, 2-0), geom_active: bit k set where its edge k is an active edge), and
-        geom_bound (sphere
-        radius about its origin), geom_contact_point (per point: 1 where it is a contact point, tested
-        against other bodies and the colliders: a mesh's surface vertices once each, in the first prism
-        that has it, and no prism's inner corner). Per body its tree of
+        geom_bound (sphere radius about its origin); per point geom_contact_point (1 where it is a
+        contact point, tested against other bodies and the colliders: a mesh's surface vertices once
+        each, in the first prism that has it, and no prism's inner corner). Per body its tree of
         oriented boxes over its geoms (obb_tree.py), root node rigid_node_start[i]: per node its box
         node_offset and node_rot (principal frame), node_half, node_bound (sphere about node_offset),
         node_child (its children, -1 for a leaf), node_geom (a leaf's geom)."""
