@@ -349,14 +349,17 @@ def test_a_capsule_rests_across_a_beam_narrower_than_its_core():
     assert y.min() > 0.2 - 0.006 and abs(y[-1] - 0.2) < 0.006
 
 
+# A capsule of radius 0.1 m and core 1 m, turned to lie along x or along z.
+CAPSULE = ta.shapes.Capsule(0.1, 0.5)
+ALONG_X = quat_about((0, 0, 1), np.pi / 2)
+ALONG_Z = quat_about((1, 0, 0), np.pi / 2)
+
+
 def test_a_capsule_rests_across_another():
-    capsule = ta.shapes.Capsule(0.1, 0.5)
-    along_x = quat_about((0, 0, 1), np.pi / 2)
-    along_z = quat_about((1, 0, 0), np.pi / 2)
     snaps = drop(
         [
-            (capsule, dict(position=(0, 0, 0), orientation=along_x, kinematic=True)),
-            (capsule, dict(position=(0, 0.21, 0), orientation=along_z)),
+            (CAPSULE, dict(position=(0, 0, 0), orientation=ALONG_X, kinematic=True)),
+            (CAPSULE, dict(position=(0, 0.21, 0), orientation=ALONG_Z)),
         ],
         1.0,
     )
@@ -371,15 +374,12 @@ def test_capsules_whose_cores_meet_part_along_their_common_normal():
     # points touch the other. Crossed at right angles, at one height: they part across both cores (y),
     # until the cores are the two radii apart. End to end on one line, overlapping by 0.2 m: they part
     # along it, to touching ends.
-    capsule = ta.shapes.Capsule(0.1, 0.5)
-    along_x = quat_about((0, 0, 1), np.pi / 2)
-    along_z = quat_about((1, 0, 0), np.pi / 2)
     snaps = drop(
         [
-            (capsule, dict(position=(0, 0, 0), orientation=along_x, kinematic=True)),
-            (capsule, dict(position=(0, 0, 0), orientation=along_z)),
-            (capsule, dict(position=(5, 0, 0), orientation=along_x, kinematic=True)),
-            (capsule, dict(position=(5 + 1.0, 0, 0), orientation=along_x)),
+            (CAPSULE, dict(position=(0, 0, 0), orientation=ALONG_X, kinematic=True)),
+            (CAPSULE, dict(position=(0, 0, 0), orientation=ALONG_Z)),
+            (CAPSULE, dict(position=(5, 0, 0), orientation=ALONG_X, kinematic=True)),
+            (CAPSULE, dict(position=(5 + 1.0, 0, 0), orientation=ALONG_X)),
         ],
         0.5,
         gravity=False,
