@@ -101,8 +101,9 @@ class Ours:
         self.stepper = self.integ.stepper_for(self.model)
 
     def step(self, n=1):
-        for _ in range(n):
-            self.stepper.step(self.state, DT)
+        # n steps as one frame of substeps, as a scene's frame is run (a launch for all of them where
+        # the Stepper's frame_mode allows: "solver_frame")
+        self.stepper.step(self.state, n * DT, substeps=n)
 
     def positions(self):
         return self.state.rigid_snapshot().position

@@ -219,7 +219,8 @@ class Stepper:
         "launches": the method's kernel once per substep with nothing else in between; "steps": the
         full step per substep (what the scene needs between substeps: contacts, moving meshes,
         rollback, a multi-stage method; emission and trails where the particles are coupled or on a
-        GPU)."""
+        GPU); "solver_frame": a scene of one solver's bodies only (no particles), which runs the frame
+        in one launch itself (its `runs_frames`: rigid bodies with serial contacts)."""
         if self._frame_mode is None:
             self._frame_mode = self._choose_frame_mode()
         return self._frame_mode
@@ -231,12 +232,16 @@ class Stepper:
         # blocked.py). Emitters' births are planned in a serial pass: on the CPU only (not measured on GPUs).
         independent = method.fusable and not model.element_terms and not model.attachment_count
         blockable_births = independent and on_cpu
+        # A solver that runs frames itself does so only alone, in a scene without particles.
+        framer = self.solvers[0] if len(self.solvers) == 1 and not model.particle_count else None
+        if framer is not None and not getattr(framer, "runs_frames", lambda m: False)(model):
+            framer = None
         needs = [
             why
             for why, present in (
-                (f"{method.name} prepares stages between substeps", not method.fusable),
+                (f"{method.name} prepares stages between substeps", not method.fusable and framer is None),
                 ("emitters", model.emitter_count > 0 and not blockable_births),
-                *((s.name, True) for s in self.solvers),
+                *((s.name, s is not framer) for s in self.solvers),
                 ("colliders prepared per step", bool(model._prepared_colliders)),
                 ("trails", model.trail_length > 0 and not independent),
                 (
@@ -248,6 +253,8 @@ class Stepper:
         ]
         if needs:
             return {"mode": "steps", "reason": "per-step work: " + ", ".join(needs)}
+        if framer is not None:
+            return {"mode": "solver_frame", "reason": f"{framer.name} only: the frame in one launch"}
         if independent:
             return {
                 "mode": "blocked",
@@ -263,16 +270,23 @@ class Stepper:
         """n substeps of h without the per-step Python work (frame_mode): the stability guard, the
         watchdog's bounds for the whole frame, the method's kernel(s), then time, counters and the
         divergence check as n calls of step(state, h) would leave them."""
+        model = self.model
         if h != self._guarded_dt:
-            stability.guard(self, state, h)
+            if model.particle_count:  # as in step: the guard bounds the particles' method
+                stability.guard(self, state, h)
             self._guarded_dt = h
             self._recovery = None
-        self.watchdog.arm(state, h * n)
+        if model.particle_count:
+            self.watchdog.arm(state, h * n)
         self._keep_good(state, frame=True)
-        method, model = self.integrator, self.model
+        method = self.integrator
         first = state.step_count
         try:
-            if mode == "blocked":
+            if mode == "solver_frame":
+                self.solvers[0].frame(model, state, h, n)
+                for _ in range(n):
+                    state.time += h
+            elif mode == "blocked":
                 if self._blocked is None:
                     self._blocked = BlockedFrame(model, method)
                 self._blocked.run(state, h, n)

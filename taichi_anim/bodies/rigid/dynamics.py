@@ -143,11 +143,8 @@ class RigidDynamics:
         if self.coupling is not None:  # the particles have moved to the end of the substep
             self.coupling.apply(model, state, state.time + h)
         keyframed = bool(model.rigid_motions)
-        c = self.contacts
-        if c is not None:  # a semi-implicit scheme (the constructor refuses contacts otherwise)
-            self._contact_step(
-                model, state, state.time, h, c.collision_sweeps, c.iterations, c.relax_iterations, keyframed
-            )
+        if self.contacts is not None:  # a semi-implicit scheme (the constructor refuses contacts otherwise)
+            self.frame(model, state, h, 1)
             return
         if keyframed:  # their velocities over the substep, for the drift
             self._keyframes(model, state, state.time + 0.5 * h, False)
@@ -158,6 +155,20 @@ class RigidDynamics:
             self._runge_kutta(model, state, h)
         if keyframed:  # exactly where the keyframes put them at the substep's end
             self._keyframes(model, state, state.time + h, True)
+
+    def runs_frames(self, model) -> bool:
+        """Whether frame() can take a whole frame in one launch: contacts solved serially (the CPU, a
+        scene under the serial size), with no particles to couple between the steps."""
+        return self.contacts is not None and self.coupling is None and model.rigid_serial
+
+    def frame(self, model, state, h: float, n: int) -> None:
+        """n contact steps of h [s] from state.time in one launch (n > 1 only where runs_frames), as n
+        after_substep calls would leave the bodies; the Stepper advances the time and reads check()."""
+        c = self.contacts
+        self._contact_step(
+            model, state, state.time, h, n, c.collision_sweeps, c.iterations, c.relax_iterations,
+            bool(model.rigid_motions),
+        )  # fmt: skip
 
     def check(self, state) -> None:
         """DivergenceError if a body's pose or velocity is no longer finite, or the contacts overflowed."""
@@ -218,11 +229,31 @@ class RigidDynamics:
         state: ti.template(),
         t: float,
         h: float,
+        steps: ti.i32,
         collision_sweeps: ti.i32,
         iterations: ti.i32,
         relax: ti.i32,
         keyframed: ti.template(),
     ):
+        """`steps` contact steps of h [s] from time t [s] (one unless the loops are serial: then a frame
+        of steps runs in this one launch, stopping after a step that overflowed the contacts or left a
+        body non-finite, for check() to report)."""
+        if ti.static(model.rigid_serial):
+            now = t
+            ti.loop_config(serialize=True)
+            for _ in range(steps):
+                self._one_contact_step(model, state, now, h, collision_sweeps, iterations, relax, keyframed)
+                if self.contacts.found[None] > self.contacts.sizes[0] or self._bad[None] >= 0:
+                    break
+                now += h  # as the Stepper adds up state.time, step by step
+        else:
+            self._one_contact_step(model, state, t, h, collision_sweeps, iterations, relax, keyframed)
+
+    @ti.func
+    def _one_contact_step(
+        self, model: ti.template(), state: ti.template(), t, h, collision_sweeps, iterations, relax,
+        keyframed: ti.template(),
+    ):  # fmt: skip
         """Kick, detection (contacts at time t [s]), preparation with the collision phase, the biased
         solve (`iterations` sweeps), drift, the relaxation (`relax` sweeps); keyframed bodies take their
         velocities at the step's middle and their poses at its end."""
