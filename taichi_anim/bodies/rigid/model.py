@@ -4,7 +4,7 @@
 import numpy as np
 import taichi as ti
 
-from ... import capacity
+from ... import bulk, capacity
 from ...errors import ParameterError
 from ...runtime import data_oriented, np_float, serial_loops
 
@@ -56,11 +56,14 @@ class RigidModel:
             self.rigid_live[None] = b
         dynamic = ~self.rigid_kinematic
         self.rigid_inv_mass = self.rigid_array(self, "rigid_inv_mass")
-        self.rigid_inv_mass.from_numpy(self.rigid_padded(np.where(dynamic, 1.0 / self.rigid_mass, 0.0)))
         self.rigid_inv_moments = self.rigid_array(self, "rigid_inv_moments", dims=(3,))
         inv = np.where(dynamic[:, None], 1.0 / self.rigid_moments, 0.0)
-        self.rigid_inv_moments.from_numpy(self.rigid_padded(inv))
-        self._init_rigid_geometry(bodies)
+        fills = [  # every field filled in one launch (bulk.py: from_numpy is a kernel per field)
+            (self.rigid_inv_mass, self.rigid_padded(np.where(dynamic, 1.0 / self.rigid_mass, 0.0))),
+            (self.rigid_inv_moments, self.rigid_padded(inv)),
+        ]
+        self._init_rigid_geometry(bodies, fills)
+        bulk.fill(fills)
 
     def rigid_array(self, owner, role: str, dtype=float, dims: tuple = ()):
         """A field of rigid_capacity rows with elements of `dims`, for `owner` (pooled under buckets)."""
@@ -78,7 +81,7 @@ class RigidModel:
         else:
             return self.rigid_count
 
-    def _init_rigid_geometry(self, bodies) -> None:
+    def _init_rigid_geometry(self, bodies, fills: list) -> None:
         """The contact geometry of every body (geometry.py) as fields. Per body: its convex parts (geoms)
         rigid_geom_start[i] to rigid_geom_start[i + 1], rigid_bound (sphere radius about the com) and
         rigid_half (OBB half extents along the principal axes), rigid_friction, rigid_restitution and
@@ -95,7 +98,8 @@ class RigidModel:
         each, in the first prism that has it, and no prism's inner corner). Per body its tree of
         oriented boxes over its geoms (obb_tree.py), root node rigid_node_start[i]: per node its box
         node_offset and node_rot (principal frame), node_half, node_bound (sphere about node_offset),
-        node_child (its children, -1 for a leaf), node_geom (a leaf's geom)."""
+        node_child (its children, -1 for a leaf), node_geom (a leaf's geom). Each field is added with
+        its values to `fills`, for the caller to write in one launch."""
         geo = [g for x in bodies for g in x["geometry"]["geoms"]]
         points = np.concatenate([g["points"] for g in geo])
         planes = np.concatenate([g["planes"] for g in geo])
@@ -114,7 +118,7 @@ class RigidModel:
             f = self.new_field(self, name, dtype, shape, dims)
             a = np.zeros((shape, *dims))
             a[: len(values)] = values
-            f.from_numpy(a.astype(np.int32 if dtype == ti.i32 else np_float()))
+            fills.append((f, a.astype(np.int32 if dtype == ti.i32 else np_float())))
             setattr(self, name, f)
 
         cap = self.rigid_capacity
