@@ -124,7 +124,8 @@ def test_mixed_terms_converge_under_every_integrator():
     assert np.abs(implicit["pcg"] - ref).max() < 1e-2 * moved
 
 
-@pytest.mark.parametrize("with_springs", [False, True])
+# with springs is the membrane, hinges and springs together; the membrane and hinges alone under slow
+@pytest.mark.parametrize("with_springs", [pytest.param(False, marks=pytest.mark.slow), True])
 def test_implicit_system_is_the_linearisation_of_the_forces(with_springs):
     """A p = M p - h df/dv p - h^2 df/dx p with the Jacobians by central differences of model.forces, at a
     flat, uniformly stretched sheet at rest (every projection exact there: membrane stress positive,
