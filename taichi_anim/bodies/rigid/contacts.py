@@ -37,6 +37,12 @@ def tangent_basis(n):
     return t1, t2
 
 
+@ti.func
+def _row_dots(m, n):
+    """(m[i] . n[i]) for the three rows of two 3x3 matrices."""
+    return ti.Vector([m[i, 0] * n[i, 0] + m[i, 1] * n[i, 1] + m[i, 2] * n[i, 2] for i in ti.static(range(3))])
+
+
 @data_oriented
 class RigidContacts(ContactDetection):
     """The contact buffers and kernels of the bodies' solver. iterations / relax_iterations: sweeps of the
@@ -140,17 +146,20 @@ class RigidContacts(ContactDetection):
             state.rigid_w[b] -= self.inv_inertia[b] @ self.rb[c].cross(impulse)
 
     @ti.func
-    def _mass_along(self, model: ti.template(), c, u):
-        a, b = self.a[c], self.b[c]
-        ka = self.inv_inertia[a] @ self.ra[c].cross(u)
-        k = model.rigid_inv_mass[a] + u.dot(ka.cross(self.ra[c]))
-        if b != NO_BODY:
-            kb = self.inv_inertia[b] @ self.rb[c].cross(u)
-            k += model.rigid_inv_mass[b] + u.dot(kb.cross(self.rb[c]))
-        return 1.0 / ti.max(k, 1e-30)
+    def _find_previous(self, key, guess):
+        """The slot of `key` among the last step's contacts (sorted), or -1: slot `guess` when it holds
+        the key (the contacts come in the last step's order, so the slot after the last one found mostly
+        does), else by binary search."""
+        found = -1
+        if guess < self.prev_count[None]:  # nested: Taichi's `and` evaluates both sides
+            if self.prev_key[guess] == key:
+                found = guess
+        if found < 0:
+            found = self._search_previous(key)
+        return found
 
     @ti.func
-    def _find_previous(self, key):
+    def _search_previous(self, key):
         """The slot of `key` among the last step's contacts (sorted), or -1 (binary search)."""
         lo, hi = 0, self.prev_count[None]
         while lo < hi:
@@ -169,26 +178,30 @@ class RigidContacts(ContactDetection):
     def run_prepare(self, model: ti.template(), state: ti.template(), h, collision_sweeps):
         """Anchors, effective masses, targets; the last step's impulses applied again (warm start); then
         the collision phase (_collide)."""
+        guess = 0  # where the last step's impulse of the next contact most likely is (_find_previous)
         ti.loop_config(serialize=True)
         for c in range(self.count[None]):
             a, b = self.a[c], self.b[c]
             n = self.normal[c]
-            self.ra[c] = self.point[c] - state.rigid_x[a]
-            if b != NO_BODY:
-                self.rb[c] = self.point[c] - state.rigid_x[b]
+            ra = self.point[c] - state.rigid_x[a]
+            self.ra[c] = ra
             t1, t2 = tangent_basis(n)
             self.t1[c], self.t2[c] = t1, t2
-            self.k[c] = ti.Vector([self._mass_along(model, c, n), self._mass_along(model, c, t1),
-                                   self._mass_along(model, c, t2)])  # fmt: skip
-
-            ja = ti.Matrix.rows([self.ra[c].cross(n), self.ra[c].cross(t1), self.ra[c].cross(t2)])
-            self.jac_a[c] = ja
-            self.resp_a[c] = ja @ self.inv_inertia[a]  # rows (I^-1 j)^T: I^-1 is symmetric
+            ja = ti.Matrix.rows([ra.cross(n), ra.cross(t1), ra.cross(t2)])
+            resp = ja @ self.inv_inertia[a]  # rows (I^-1 j)^T: I^-1 is symmetric
+            self.jac_a[c], self.resp_a[c] = ja, resp
+            # inverse effective masses along n, t1, t2: 1/m + (r x u) . I^-1 (r x u) per body
+            k = model.rigid_inv_mass[a] + _row_dots(ja, resp)
             jb = ti.Matrix.zero(float, 3, 3)
             if b != NO_BODY:
-                jb = ti.Matrix.rows([self.rb[c].cross(n), self.rb[c].cross(t1), self.rb[c].cross(t2)])
-                self.resp_b[c] = jb @ self.inv_inertia[b]
+                rb = self.point[c] - state.rigid_x[b]
+                self.rb[c] = rb
+                jb = ti.Matrix.rows([rb.cross(n), rb.cross(t1), rb.cross(t2)])
+                resp_b = jb @ self.inv_inertia[b]
+                self.resp_b[c] = resp_b
+                k += model.rigid_inv_mass[b] + _row_dots(jb, resp_b)
             self.jac_b[c] = jb
+            self.k[c] = 1.0 / ti.max(k, 1e-30)
 
             sep = self.sep[c]
             biased = -sep / h  # speculative: the gap may close within the step, no more
@@ -197,7 +210,9 @@ class RigidContacts(ContactDetection):
                 biased = ti.min(self.beta / h * ti.max(-sep - self.slop, 0.0), self.max_push)
                 relaxed = 0.0
             impulse = ti.Vector.zero(float, 3)
-            prev = self._find_previous(self.key[c])
+            prev = self._find_previous(self.key[c], guess)
+            if prev >= 0:
+                guess = prev + 1
             self.target[c] = ti.Vector([biased, relaxed])
             # Restitution (_collide, before the solve) only where the contact was not pushing last step:
             # a contact that was is resting, and the solver's leftover there (a tall stack's first steps)
