@@ -312,7 +312,9 @@ class Stepper:
             raise
         state.step_count += n
         every = method.check_every
-        if (state.step_count // every) > (first // every):  # a multiple of check_every passed
+        # A solver's frame stops at a step that overflowed or diverged, leaving the rest undone: it is
+        # read after every frame, whatever check_every says.
+        if (state.step_count // every) > (first // every) or mode == "solver_frame":
             self.check(state)
 
     def check(self, state, *, energy: bool = False) -> None:

@@ -25,7 +25,7 @@ PACKAGE_DIR = Path(__file__).resolve().parent.parent / PACKAGE
 LAYERS = [
     # foundations: errors, argument checks, the Taichi runtime, the failure policy, signals
     # (capacity: the size buckets and field pool the runtime's init switches; frontend: Taichi's front end
-    # made cheaper, installed by the runtime)
+    # made cheaper, installed by the runtime; bulk: many fields written in one launch)
     (
         "errors",
         "validate",
@@ -33,6 +33,7 @@ LAYERS = [
         "capacity",
         "frontend",
         "runtime",
+        "bulk",
         "health",
         "interrupts",
         "compile_clock",
