@@ -57,8 +57,8 @@ def test_a_frame_in_one_launch_equals_its_steps_bit_for_bit():
 def test_an_overflow_inside_a_frame_is_reported_and_the_frame_start_kept(check_every):
     # Room for 4 contacts: the first frame (the boxes in the air but the pushed one, 4 corners on the
     # floor) holds; the paddle's corners reach the box within the next frames and overflow the buffers:
-    # the frame stops, the error names the capacity (also where the watch is read only every 20 steps:
-    # a frame that stopped early is read at its end), and the state is the last good frame's start.
+    # the frame stops, the error names the capacity (also where the watch is read only every 20 steps),
+    # and the state is the last good frame's start.
     m, s = scene(capacity=4)
     integ = ta.make_integrator("symplectic_euler", check_every=check_every, policy={"keep_last_good": True})
     stepper = integ.stepper_for(m)
