@@ -3,10 +3,8 @@ of the contact step alone in a kernel of its own (detection, preparation with th
 impulses' store, kick and drift), and whole steps at 1 + 1 to 32 + 16 sweeps, whose slope is one sweep.
 Medians of 20-step launches after a warm-up; f32, 2 ms steps, as rigid.py."""
 
-import statistics
-
 import taichi as ti
-from harness import Page, clock, init, log, parse_args
+from harness import Page, init, log, median_time, parse_args
 from rigid import DT, Ours, pyramid, tower
 
 SWEEPS = ((1, 1), (4, 1), (8, 4), (16, 8), (32, 16))
@@ -14,13 +12,7 @@ SWEEPS = ((1, 1), (4, 1), (8, 4), (16, 8), (32, 16))
 
 def per_step(fn, steps: int, repeats: int) -> float:
     """Median seconds per step of fn(steps), after one warm-up call."""
-    fn(1)
-    times = []
-    for _ in range(repeats):
-        a = clock()
-        fn(steps)
-        times.append((clock() - a) / steps)
-    return statistics.median(times)
+    return median_time(lambda: fn(steps), repeats=repeats, warmup=1) / steps
 
 
 def parts(engine) -> dict:

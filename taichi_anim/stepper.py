@@ -282,30 +282,26 @@ class Stepper:
         method = self.integrator
         first = state.step_count
         try:
-            if mode == "solver_frame":
-                self.solvers[0].frame(model, state, h, n)
-                for _ in range(n):
-                    state.time += h
-            elif mode == "blocked":
-                if self._blocked is None:
-                    self._blocked = BlockedFrame(model, method)
-                self._blocked.run(state, h, n)
-                if state.trail_length:
-                    state.trail_head = (state.trail_head + n) % state.trail_length
-                method.evaluations += method.stages * n
-                for _ in range(n):
-                    state.time += h
-            elif mode == "serial_frame":
-                method._frame(model, state, state.time, h, n, first + 1)
-                method.evaluations += method.stages * n
-                for _ in range(n):
-                    state.time += h
-            else:
+            if mode == "launches":  # one launch per substep, each at its own time
                 x, v = state.particle_x, state.particle_v
                 for k in range(n):
                     t = state.time
                     method._final(model, state, x, v, x, v, t, t, h, first + k + 1, True)
                     state.time += h
+            else:
+                if mode == "solver_frame":
+                    self.solvers[0].frame(model, state, h, n)
+                elif mode == "blocked":
+                    if self._blocked is None:
+                        self._blocked = BlockedFrame(model, method)
+                    self._blocked.run(state, h, n)
+                    if state.trail_length:
+                        state.trail_head = (state.trail_head + n) % state.trail_length
+                else:
+                    method._frame(model, state, state.time, h, n, first + 1)
+                for _ in range(n):  # added step by step, as n calls of step(state, h) would
+                    state.time += h
+            if mode != "solver_frame":  # the bodies' solver steps without the particles' method
                 method.evaluations += method.stages * n
         except BaseException:  # Ctrl-C between a frame's launches: back to the frame's start, as step does
             self._roll_back(state)
