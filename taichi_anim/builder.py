@@ -461,6 +461,7 @@ class Builder(*BUILDER_PARTS):
         settings = {
             **kind_settings["particles"],
             **(kind_settings["rigid"] if self.rigid_count else {}),
+            **kind_settings["fluid"],
             "forces": [t.settings() for t in terms],
             "colliders": [c.settings() for c in self._colliders],
             "attachments": [a.settings() for a in self._attachments],

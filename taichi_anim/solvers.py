@@ -18,10 +18,14 @@ and, optionally,
   separation_speed(model, state, dt)     [m/s] the speed the solver may legitimately give particles at
                                          the first step (spheres placed overlapping are pushed apart at
                                          overlap / dt); the watchdog's speed bound allows it
+  frame_stats() -> dict                  after each frame of a scene run (scenes/runner.py): the
+                                         solver's figures for that frame, kept per frame in run.json's
+                                         `solver_frames` (the liquid: pressure iterations, density errors)
 
 The rigid bodies' solver (bodies/rigid/dynamics.py) comes first: it steps the bodies by the method's
 `rigid_scheme` (its constructor gets the method: `takes_method`), after the particles they push and that
-push them have moved.
+push them have moved. The liquid's pressure solver (bodies/fluid/dfsph.py) follows: it makes the
+velocities the method proposed for the fluid particles divergence- and density-error-free.
 
 Coupling is Gauss-Seidel through the State: each solver reads the positions and velocities the method
 and the solvers before it left, and writes its corrections (impulses as velocity changes, projections as
@@ -36,6 +40,7 @@ contacts, dt)` in a sequence, each reading the state the previous one wrote).
 Adding a contact solver: a class with these methods in its own file, and one line in `SOLVERS` below
 (the model option it is built from); a user adds one at run time with `Stepper.add_solver(solver)`."""
 
+from .bodies.fluid import FluidDynamics
 from .bodies.rigid import RigidDynamics
 from .collision.self_contact import SelfContact
 from .collision.spheres import ContactSpheres
@@ -48,6 +53,7 @@ REQUIRED = ("name", "substeps", "before_substep", "after_substep", "check", "set
 # recorded, or None when the scene did not ask for it; the class built from them with (model, **options)).
 SOLVERS = (
     ("rigid_dynamics", RigidDynamics),
+    ("fluid", FluidDynamics),
     ("sphere_contacts", ContactSpheres),
     ("self_contact", SelfContact),
 )

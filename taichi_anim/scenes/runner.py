@@ -137,7 +137,7 @@ def _run(scene, frames, out, removed, stop: SignalStop, **options) -> dict:
     settings.update(options["extra_settings"] or {})
     write_manifest(out, settings, {}, status="running", health=stepper.health.to_dict())
     run = {"frame_times": [], "first_frame_s": None, "export_s": 0.0, "render_s": 0.0, "frames_done": 0}
-    run.update(compile_s=None, compile_kernels=None, stop=stop)
+    run.update(compile_s=None, compile_kernels=None, stop=stop, solver_frames={})
     run.update(video_path=options["video"], color_by=options["color_by"], video_times=[], video=None)
     files: list[dict] = []  # what the run published, in order (see recording_files)
     status, failure = "failed", None
@@ -226,6 +226,7 @@ def _simulate(scene, stepper, frames, out, formats, progress, viewer, run, tqdm)
                 # The watch may be read only every check_every steps: read it now, so a frame after a
                 # diverged step is never written.
                 stepper.check(state, energy=True)
+                _record_solver_frames(stepper, run["solver_frames"])
                 items = None
                 if formats:
                     t0 = time.perf_counter()
@@ -294,6 +295,7 @@ def _summary(scene, stepper, out, frames, run, files, complete: bool) -> dict:
         "arch": backend_name(),
         "health": stepper.health.to_dict(),
         "watchdog": stepper.watchdog.describe(),  # the divergence bounds in force (watchdog.py)
+        "solver_frames": run["solver_frames"],  # per frame, from solvers that report (frame_stats)
     }
     if not complete:
         return summary  # the state may be non-finite or the runtime interrupted: report only the counts
@@ -311,6 +313,15 @@ def _summary(scene, stepper, out, frames, run, files, complete: bool) -> dict:
         summary["mean_iterations"] = solver.total_iterations / solver.solves
         summary["last_residual"] = solver.last.residual
     return summary
+
+
+def _record_solver_frames(stepper, record: dict) -> None:
+    """Each solver that reports per frame (an optional `frame_stats()`: the liquid's pressure iterations
+    and density errors) appends its frame's figures to run.json's `solver_frames` [name] list."""
+    for solver in stepper.solvers:
+        stats = getattr(solver, "frame_stats", None)
+        if stats is not None:
+            record.setdefault(solver.name, []).append(stats())
 
 
 def _per_frame(run: dict) -> float:

@@ -1,0 +1,393 @@
+"""Divergence-free SPH (Bender & Koschier, "Divergence-Free Smoothed Particle Hydrodynamics", SCA 2015,
+and "Divergence-Free SPH for Incompressible and Viscous Fluids", TVCG 2017): the liquid's solver in the
+Stepper's list.
+
+Each substep of h, with the neighbourhoods, densities rho_i and factors alpha_i of its start (eq. 8 of
+the 2017 paper, with Akinci's boundary samples b: boundary.py)
+
+    alpha_i = 1 / ( |sum_j m_j grad W_ij + sum_b psi_b grad W_ib|^2 + sum_j |m_j grad W_ij|^2 ),
+
+1. before the method moves the particles: the divergence solve (alg. 2) makes the velocities
+   divergence-free: Drho_i/Dt = sum_j m_j (v_i - v_j).grad W_ij + sum_b psi_b v_i.grad W_ib, clamped to
+   compression, gives kappa^v_i = (Drho_i/Dt) alpha_i / h, and every iteration applies
+   v_i -= h [ sum_j m_j (kappa_i + kappa_j) grad W_ij + sum_b psi_b kappa_i grad W_ib ]   (eq. 11, 12)
+   until the mean of h Drho/Dt / rho0 is below the divergence tolerance;
+2. the method adds the non-pressure forces (gravity, ...) to the velocities (v*), and the solver adds
+   XSPH viscosity (Monaghan, "On the problem of penetration in particle methods", JCP 1989,
+   eq. 2.9, with the pair's mean density);
+3. after it: the density solve (alg. 3) corrects v* until the predicted density
+   rho*_i = rho_i + h Drho_i/Dt, clamped to compression, is within the tolerance of rho0 on average,
+   with kappa_i = (rho*_i - rho0) alpha_i / h^2 and the same velocity update;
+4. x = x(start) + h v, then every collider's surface as a last guard against leaks, and the particles
+   are written back.
+
+The kappa_i summed over a solve's iterations is p_i / rho_i^2 (the symmetric SPH pressure force of
+eq. 12 is -m_i sum_j m_j (p_i/rho_i^2 + p_j/rho_j^2) grad W_ij), so the state reports each particle's
+pressure p_i; the next step starts from it (warm start, sec. 4 of the 2015 paper). Pairs act equally and
+oppositely (equal masses, antisymmetric gradients), so the solves conserve momentum.
+
+Work runs in the neighbour grid's slot order (cell by cell): each particle's neighbours are listed once
+per substep, and the iterations walk the lists over contiguous memory. The convergence test sums
+errors as 2^-40 fixed-point integers, whose atomic sum does not depend on thread timing: a run gives the
+same iterations and bits at any thread count."""
+
+import math
+
+import numpy as np
+import taichi as ti
+
+from ...collision.neighbors import make_neighbor_search
+from ...runtime import data_oriented, np_float
+from .boundary import boundary_samples
+from .sph_kernel import cubic_grad, cubic_w, lattice_sum
+
+FLUID_NEIGHBORS = 64  # listed fluid neighbours per particle (26 at rest; a compressed splash ~45)
+BOUNDARY_NEIGHBORS = 64  # listed boundary samples per particle (~13 at a wall, ~40 in a corner)
+DIVERGENCE_MIN_NEIGHBORS = 20  # sparser particles (spray, the free surface) skip the divergence solve
+ERROR_SCALE = float(1 << 40)  # fixed-point unit of the summed errors
+# Warm starts: the share of the last step's summed stiffness a solve starts from. A kappa summed over
+# iterations can only grow (each iteration's is clamped to compression), so too much of it overshoots:
+# the whole of it made a settling column diverge within 4 steps of 4.2 ms (the corner particles, with
+# few neighbours and large alpha, overshoot first), half of it is stable and takes 20 density
+# iterations per step against 34-44 without (the column of tests/test_fluid.py at 2 cm spacing).
+WARM_DENSITY, WARM_DIVERGENCE = 0.5, 0.0
+
+
+def _dynamic_acceleration(model) -> float:
+    """|g| [m/s^2] of the pointwise terms that say they act on every body (gravity)."""
+    g = np.zeros(3)
+    for term in model.point_terms:
+        accel = getattr(term, "body_acceleration", None)
+        if accel is not None:
+            g += np.asarray(accel(), dtype=np.float64)
+    return float(np.linalg.norm(g))
+
+
+@data_oriented
+class FluidDynamics:
+    """The liquid's pressure solver (module docstring); built by the Stepper from `model.fluid`."""
+
+    name = "fluid"
+
+    def __init__(self, model, *, spacing, density, method, tolerance, divergence_tolerance, min_iterations,
+                 max_iterations, viscosity, cfl, max_step, max_substeps, domain, mass):  # fmt: skip
+        self.model = model
+        self.method = method
+        self.tolerance = float(tolerance)
+        self.divergence_tolerance = float(divergence_tolerance)
+        self.min_iterations, self.max_iterations = int(min_iterations), int(max_iterations)
+        self.viscosity, self.cfl, self.max_substeps = float(viscosity), float(cfl), int(max_substeps)
+        self.max_step = float(max_step)
+        self.spacing, self.rest_density, self.mass = float(spacing), float(density), float(mass)
+        self.support = model.fluid_support
+        self.domain = (np.asarray(domain[0], dtype=np.float64), np.asarray(domain[1], dtype=np.float64))
+        self.gravity = _dynamic_acceleration(model)
+        n = model.fluid_count
+        make = model.new_field
+        grow = (self.domain[0] - self.support, self.domain[1] + self.support)
+        self.grid = make_neighbor_search(n, self.support, domain=grow, make=make)
+        samples = boundary_samples(model.colliders, self.domain, self.spacing, self.support)
+        self.boundary_count = len(samples)
+        self.walls = self.boundary_count > 0  # compile-time: kernels visit boundary samples only if any
+        self.boundary = None
+        if self.boundary_count:
+            self.boundary = make_neighbor_search(self.boundary_count, self.support, domain=grow, make=make)
+            bx = make(self, "fluid_boundary_x", float, self.boundary_count, (3,))
+            bx.from_numpy(samples.astype(np_float()))
+            self.boundary.build(bx)
+            self.boundary_psi = make(self, "fluid_boundary_psi", float, self.boundary_count)
+            # Akinci's psi_b = rho0 V_b makes a flat layer worth 1.43 lattice layers at H = 2 spacings (it
+            # stands for the missing deeper layers), which packs a block filled up to a wall 6 % above rest
+            # density at its first layer. Scaled by one layer's share of the lattice sum, a flat wall
+            # sampled at the liquid's spacing is exactly the lattice continued: the block starts at rest.
+            plane = lattice_sum(self.spacing, self.support, 2)
+            self.layer_share = plane / lattice_sum(self.spacing, self.support)
+            self._boundary_volumes()  # psi_b = rho0 / sum_b' W_bb' (Akinci et al. 2012, eq. 4-5)
+        f = lambda role, dtype=float, dims=(), shape=n: make(self, role, dtype, shape, dims)  # noqa: E731
+        self.cx, self.sv, self.sv2 = (f(f"fluid_{r}", dims=(3,)) for r in ("cx", "sv", "sv2"))
+        self.rho, self.alpha, self.kappa, self.kacc = (f(f"fluid_{r}") for r in ("rho", "alpha", "k", "kacc"))
+        self.nn, self.bn = f("fluid_nn", ti.i32), f("fluid_bn", ti.i32)
+        self.nbr = f("fluid_nbr", ti.i32, shape=(n, FLUID_NEIGHBORS))
+        self.bnbr = f("fluid_bnbr", ti.i32, shape=(n, BOUNDARY_NEIGHBORS))
+        self.err_sum = f("fluid_err_sum", ti.i64, shape=())
+        self.err_max = f("fluid_err_max", shape=())
+        self.overflow = f("fluid_overflow", ti.i32, shape=())
+        self.speed = f("fluid_speed", shape=())
+        self.overflow[None] = 0
+        self.totals = dict(steps=0, density_iterations=0, divergence_iterations=0, unconverged_steps=0,
+                           mean_error_max=0.0, max_error_max=0.0)  # fmt: skip
+        self._frame: list[dict] = []
+        self.last = {}
+
+    # --- the protocol -------------------------------------------------------------------------
+
+    def substeps(self, model, state, dt: float) -> int:
+        """CFL: substeps so that no particle moves more than cfl spacings in one (Bender & Koschier
+        2017, eq. 13), counting the speed gravity adds over the step, and none longer than max_step."""
+        self._max_speed(state, model)
+        v = float(self.speed[None]) + self.gravity * dt
+        n = max(math.ceil(dt * v / (self.cfl * self.spacing)), math.ceil(dt / self.max_step - 1e-9), 1)
+        return int(min(n, self.max_substeps))
+
+    def before_substep(self, model, state, h: float) -> None:
+        """Neighbourhoods, densities and factors at the substep's start; the divergence solve."""
+        self._gather_positions(state, model)
+        self.grid.build(self.cx, model.fluid_count)
+        self._neighborhoods(state, model)
+        iterations, mean, _ = self._solve(h, divergence=True, state=state)
+        self.last = dict(divergence_iterations=iterations, divergence_error=mean)
+        self._write_velocities(state, model, h)
+
+    def after_substep(self, model, state, h: float, step: int) -> None:
+        """XSPH, the density solve, then positions from the corrected velocities."""
+        self._gather_velocities(state, model, self.viscosity)
+        iterations, mean, worst = self._solve(h, divergence=False, state=state)
+        self._finish(state, model, h, float(state.time + h))
+        self.last.update(density_iterations=iterations, mean_density_error=mean, max_density_error=worst)
+        t = self.totals
+        t["steps"] += 1
+        t["density_iterations"] += iterations
+        t["divergence_iterations"] += self.last["divergence_iterations"]
+        t["unconverged_steps"] += int(mean > self.tolerance)
+        t["mean_error_max"] = max(t["mean_error_max"], mean)
+        t["max_error_max"] = max(t["max_error_max"], worst)
+        self._frame.append(dict(self.last))
+
+    def check(self, state) -> None:
+        """Nothing to roll back for: a solve that stops at max_iterations is counted (unconverged_steps)."""
+
+    def settings(self) -> dict:
+        """Options, for run.json."""
+        return dict(
+            method=self.method, tolerance=self.tolerance, divergence_tolerance=self.divergence_tolerance,
+            min_iterations=self.min_iterations, max_iterations=self.max_iterations,
+            viscosity=self.viscosity, cfl=self.cfl, max_step=self.max_step, max_substeps=self.max_substeps,
+            boundary_particles=self.boundary_count, neighbor_search=self.grid.settings(),
+        )  # fmt: skip
+
+    def frame_stats(self) -> dict:
+        """The steps since the last call, summed up for run.json's per-frame record: steps, pressure
+        iterations (density and divergence), the mean and largest density error after the solves."""
+        steps, self._frame = self._frame, []
+        if not steps:
+            return {}
+        return dict(
+            steps=len(steps),
+            density_iterations=sum(s["density_iterations"] for s in steps),
+            divergence_iterations=sum(s["divergence_iterations"] for s in steps),
+            mean_density_error=max(s["mean_density_error"] for s in steps),
+            max_density_error=max(s["max_density_error"] for s in steps),
+            neighbor_overflow=int(self.overflow[None]),
+        )
+
+    def stats(self) -> dict:
+        """Totals over the run: steps, iterations, steps that reached max_iterations above the
+        tolerance, the largest mean and largest single density error after a solve, and how many
+        neighbours did not fit the lists (0 unless the liquid was compressed far beyond rest)."""
+        return dict(self.totals, neighbor_overflow=int(self.overflow[None]))
+
+    # --- solves ---------------------------------------------------------------------------------
+
+    def _solve(self, h: float, *, divergence: bool, state) -> tuple[int, float, float]:
+        """Iterate until the mean error is below the tolerance (at least min_iterations): (iterations,
+        mean error, largest error) of the final velocities."""
+        n = self.model.fluid_count
+        tol = self.divergence_tolerance if divergence else self.tolerance
+        self._start(state, self.model, h, divergence)
+        mean = int(self.err_sum[None]) / ERROR_SCALE / n
+        it = 0
+        while it < self.max_iterations and (mean > tol or it < self.min_iterations):
+            self._iterate(h, divergence)
+            it += 1
+            mean = int(self.err_sum[None]) / ERROR_SCALE / n
+        return it, mean, float(self.err_max[None])
+
+    @ti.func
+    def _flux(self, k):
+        """Drho_k/Dt [kg/m^3/s] from the slot velocities (static boundary)."""
+        xi, vi = self.grid.sorted_x[k], self.sv[k]
+        d = ti.cast(0.0, float)
+        for m in range(self.nn[k]):
+            kk = self.nbr[k, m]
+            d += self.mass * (vi - self.sv[kk]).dot(cubic_grad(xi - self.grid.sorted_x[kk], self.support))
+        if ti.static(self.walls):
+            for m in range(self.bn[k]):
+                b = self.bnbr[k, m]
+                d += self.boundary_psi[b] * vi.dot(cubic_grad(xi - self.boundary.sorted_x[b], self.support))
+        return d
+
+    @ti.func
+    def _predict(self, h, divergence: ti.template()):
+        """Each slot's stiffness kappa from its predicted error, and the errors' fixed-point sum and max."""
+        for k in range(self.model.fluid_count):
+            d = self._flux(k)
+            s, e = ti.cast(0.0, float), ti.cast(0.0, float)
+            if ti.static(divergence):
+                if self.nn[k] + self.bn[k] >= DIVERGENCE_MIN_NEIGHBORS:
+                    s = ti.max(d, 0.0)
+                self.kappa[k] = s * self.alpha[k] / h
+                e = s * h / self.rest_density
+            else:
+                s = ti.max(self.rho[k] + h * d - self.rest_density, 0.0)
+                self.kappa[k] = s * self.alpha[k] / (h * h)
+                e = s / self.rest_density
+            ti.atomic_add(self.err_sum[None], ti.cast(e * ERROR_SCALE + 0.5, ti.i64))
+            ti.atomic_max(self.err_max[None], e)
+
+    @ti.func
+    def _correct(self, h):
+        """v_k -= h [sum_j m (kappa_k + kappa_j) grad W + sum_b psi_b kappa_k grad W]; kappa summed."""
+        for k in range(self.model.fluid_count):
+            xi, ki = self.grid.sorted_x[k], self.kappa[k]
+            dv = ti.Vector.zero(float, 3)
+            for m in range(self.nn[k]):
+                kk = self.nbr[k, m]
+                dv += (ki + self.kappa[kk]) * cubic_grad(xi - self.grid.sorted_x[kk], self.support)
+            dv *= self.mass
+            if ti.static(self.walls):
+                for m in range(self.bn[k]):
+                    b = self.bnbr[k, m]
+                    dv += self.boundary_psi[b] * ki * cubic_grad(xi - self.boundary.sorted_x[b], self.support)
+            self.sv[k] -= h * dv
+            self.kacc[k] += ki
+
+    @ti.kernel
+    def _start(self, state: ti.template(), model: ti.template(), h: float, divergence: ti.template()):
+        """Warm start from a share of the last step's stiffness, then the first prediction."""
+        for k in range(model.fluid_count):
+            j = self.grid.sorted_id[k]
+            self.kacc[k] = 0.0
+            if ti.static(divergence):
+                self.kappa[k] = WARM_DIVERGENCE * state.fluid_kappa_v[j] / h
+            else:
+                self.kappa[k] = WARM_DENSITY * state.fluid_kappa[j] / (h * h)
+        self._correct(h)
+        self.err_sum[None] = 0
+        self.err_max[None] = 0.0
+        self._predict(h, divergence)
+
+    @ti.kernel
+    def _iterate(self, h: float, divergence: ti.template()):
+        self._correct(h)
+        self.err_sum[None] = 0
+        self.err_max[None] = 0.0
+        self._predict(h, divergence)
+
+    # --- gathering and scattering ----------------------------------------------------------------
+
+    @ti.kernel
+    def _max_speed(self, state: ti.template(), model: ti.template()):
+        self.speed[None] = 0.0
+        for j in range(model.fluid_count):
+            ti.atomic_max(self.speed[None], state.particle_v[model.fluid_particle[j]].norm())
+
+    @ti.kernel
+    def _gather_positions(self, state: ti.template(), model: ti.template()):
+        for j in range(model.fluid_count):
+            self.cx[j] = state.particle_x[model.fluid_particle[j]]
+
+    @ti.func
+    def _list_fluid(self, k, kk, ret: ti.template()):
+        if kk != k:
+            n = self.nn[k]
+            if n < FLUID_NEIGHBORS:
+                self.nbr[k, n] = kk
+                self.nn[k] = n + 1
+            else:
+                ti.atomic_add(self.overflow[None], 1)
+
+    @ti.func
+    def _list_boundary(self, k, b, ret: ti.template()):
+        n = self.bn[k]
+        if n < BOUNDARY_NEIGHBORS:
+            self.bnbr[k, n] = b
+            self.bn[k] = n + 1
+        else:
+            ti.atomic_add(self.overflow[None], 1)
+
+    @ti.kernel
+    def _neighborhoods(self, state: ti.template(), model: ti.template()):
+        """Each slot's neighbour lists, density, factor alpha and velocity."""
+        for k in range(model.fluid_count):
+            xi = self.grid.sorted_x[k]
+            self.nn[k] = 0
+            self.bn[k] = 0
+            unused = 0
+            self.grid.for_each_neighbor(k, xi, self.support, self._list_fluid, unused)
+            if ti.static(self.walls):
+                self.boundary.for_each_neighbor(k, xi, self.support, self._list_boundary, unused)
+            rho = self.mass * cubic_w(0.0, self.support)
+            grad_sum = ti.Vector.zero(float, 3)
+            square_sum = ti.cast(0.0, float)
+            for m in range(self.nn[k]):
+                d = xi - self.grid.sorted_x[self.nbr[k, m]]
+                rho += self.mass * cubic_w(d.norm(), self.support)
+                g = self.mass * cubic_grad(d, self.support)
+                grad_sum += g
+                square_sum += g.dot(g)
+            if ti.static(self.walls):
+                for m in range(self.bn[k]):
+                    b = self.bnbr[k, m]
+                    d = xi - self.boundary.sorted_x[b]
+                    rho += self.boundary_psi[b] * cubic_w(d.norm(), self.support)
+                    grad_sum += self.boundary_psi[b] * cubic_grad(d, self.support)
+            den = grad_sum.dot(grad_sum) + square_sum
+            self.rho[k] = rho
+            self.alpha[k] = 1.0 / den if den > 0.0 else 0.0
+            self.sv[k] = state.particle_v[model.fluid_particle[self.grid.sorted_id[k]]]
+
+    @ti.kernel
+    def _write_velocities(self, state: ti.template(), model: ti.template(), h: float):
+        for k in range(model.fluid_count):
+            j = self.grid.sorted_id[k]
+            state.particle_v[model.fluid_particle[j]] = self.sv[k]
+            state.fluid_kappa_v[j] = self.kacc[k] * h
+
+    @ti.kernel
+    def _gather_velocities(self, state: ti.template(), model: ti.template(), c: float):
+        """v* from the method, smoothed by XSPH with the pair's mean density (Monaghan 1989, eq. 2.9):
+        v_i += c sum_j (2 m / (rho_i + rho_j)) (v_j - v_i) W_ij, equal and opposite in every pair."""
+        for k in range(model.fluid_count):
+            self.sv2[k] = state.particle_v[model.fluid_particle[self.grid.sorted_id[k]]]
+        for k in range(model.fluid_count):
+            xi, vi, rho = self.grid.sorted_x[k], self.sv2[k], self.rho[k]
+            dv = ti.Vector.zero(float, 3)
+            for m in range(self.nn[k]):
+                kk = self.nbr[k, m]
+                w = cubic_w((xi - self.grid.sorted_x[kk]).norm(), self.support)
+                dv += (self.sv2[kk] - vi) * (2.0 * w / (rho + self.rho[kk]))
+            self.sv[k] = vi + c * self.mass * dv
+
+    @ti.kernel
+    def _finish(self, state: ti.template(), model: ti.template(), h: float, t: float):
+        """x = x(start) + h v; colliders' surfaces as a last guard; write back; record p and rho."""
+        for k in range(model.fluid_count):
+            j = self.grid.sorted_id[k]
+            p = model.fluid_particle[j]
+            v = self.sv[k]
+            x = self.grid.sorted_x[k] + h * v
+            for c in ti.static(model.colliders):
+                d, n, vs = c.contact(x, t)
+                if d < 0.0:
+                    x -= d * n
+                    vn = (v - vs).dot(n)
+                    if vn < 0.0:
+                        v -= vn * n
+            state.particle_x[p] = x
+            state.particle_v[p] = v
+            state.fluid_kappa[j] = self.kacc[k] * h * h
+            state.fluid_density[j] = self.rho[k]
+            state.fluid_pressure[j] = self.kacc[k] * self.rho[k] * self.rho[k]
+
+    @ti.kernel
+    def _boundary_volumes(self):
+        for b in range(self.boundary_count):
+            acc = ti.cast(0.0, float)
+            self.boundary_psi[b] = 0.0
+            self.boundary.for_each_neighbor(b, self.boundary.sorted_x[b], self.support, self._add_w, acc)
+            self.boundary_psi[b] = self.layer_share * self.rest_density / (acc + cubic_w(0.0, self.support))
+
+    @ti.func
+    def _add_w(self, b, bb, acc: ti.template()):
+        if bb != b:
+            acc += cubic_w((self.boundary.sorted_x[b] - self.boundary.sorted_x[bb]).norm(), self.support)

@@ -1,0 +1,37 @@
+"""The fluid kind's model part: which particles are liquid, and the liquid's constants."""
+
+from types import MappingProxyType
+
+import numpy as np
+import taichi as ti
+
+from ...runtime import data_oriented
+from .builder import SUPPORT_PER_SPACING
+
+
+@data_oriented
+class FluidModel:
+    """Model methods of the fluid kind (the Model inherits them).
+
+    fluid_count; fluid_particles (F,) the particle index of each fluid particle (NumPy) and
+    fluid_particle (F,) the same as a field for kernels (None without liquid); fluid_spacing [m],
+    fluid_support [m] (the SPH support radius), fluid_density [kg/m^3] at rest, fluid_mass [kg] per
+    particle; fluid: the solver's options (None without liquid), which the Stepper builds its solver
+    from (solvers.SOLVERS)."""
+
+    def _init_fluid(self, *, particles, options) -> None:
+        self.fluid_particles = np.asarray(particles, dtype=np.int64)
+        self.fluid_particles.setflags(write=False)
+        self.fluid_count = len(self.fluid_particles)
+        self.fluid = None
+        self.fluid_particle = None
+        self.fluid_spacing = self.fluid_support = self.fluid_density = self.fluid_mass = 0.0
+        if not self.fluid_count:
+            return
+        self.fluid = MappingProxyType(dict(options))
+        self.fluid_spacing = float(options["spacing"])
+        self.fluid_support = SUPPORT_PER_SPACING * self.fluid_spacing
+        self.fluid_density = float(options["density"])
+        self.fluid_mass = float(options["mass"])
+        self.fluid_particle = self.new_field(self, "fluid_particle", ti.i32, self.fluid_count)
+        self.fluid_particle.from_numpy(self.fluid_particles.astype(np.int32))
