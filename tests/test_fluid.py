@@ -51,13 +51,16 @@ def settled_column(d=0.02, width=0.16, height=0.32, frames=72) -> dict:
     positions and pressures, the top particle's height and the largest mean density error per frame,
     the solver's totals."""
     model, state, stepper, fluid = tank(d, (width, height, width), (width, 2 * height, width))
-    tops, errors = [], []
-    for _ in range(frames):
+    tops, errors, xs, ps = [], [], [], []
+    for frame in range(frames):
         stepper.advance(state, 1.0 / 60.0, 1)
         errors.append(fluid.frame_stats()["mean_density_error"])
-        tops.append(state.positions()[model.fluid_particles, 1].max())
-    x = state.positions()[model.fluid_particles]
-    return dict(x=x, p=state.fluid_pressures(), tops=np.array(tops), errors=np.array(errors),
+        x = state.positions()[model.fluid_particles]
+        tops.append(x[:, 1].max())
+        if frame >= frames - 30:  # the last half second, averaged: the column still sways a little
+            xs.append(x)
+            ps.append(state.fluid_pressures())
+    return dict(x=np.mean(xs, axis=0), p=np.mean(ps, axis=0), tops=np.array(tops), errors=np.array(errors),
                 stats=fluid.stats(), spacing=d, width=width)  # fmt: skip
 
 
@@ -69,11 +72,11 @@ def column():
 
 
 def test_settled_column_pressure_grows_as_rho_g_depth(column):
-    """Hydrostatics, dp/dy = -rho0 g: the slope of the particles' pressure against height, away from
-    the walls and the free surface, after 1.2 s of settling. SPH's pressure gradient on a settled
+    """Hydrostatics, dp/dy = -rho0 g: the slope of the particles' pressure against height (each
+    averaged over 0.7-1.2 s), away from the walls and the free surface. SPH's pressure gradient on a settled
     (not lattice) arrangement carries an error of a few per cent (the symmetric gradient's
     sum_j m (p_i + p_j) grad W_ij does not vanish for constant p off a lattice): 5 % here; measured
-    +3.3 % in f64 (this test) and +2.9 % in f32 after 1.5 s."""
+    +4.5 % in f64 (this test); single instants gave +3 to +8 %."""
     x, p, d, half = column["x"], column["p"], column["spacing"], 0.5 * column["width"]
     inner = np.all(np.abs(x[:, [0, 2]] - half) < half - 2 * d, axis=1)
     inner &= (x[:, 1] > 2 * d) & (x[:, 1] < column["tops"][-1] - 3 * d)

@@ -4,6 +4,7 @@ from .. import validate
 from . import (
     blobs,
     cloth,
+    dam_break,
     dominoes,
     drape,
     flag,
@@ -30,6 +31,7 @@ SCENES = {
     "dominoes": dominoes,
     "pile": pile,
     "rigid_cloth": rigid_cloth,
+    "dam_break": dam_break,
 }
 DEFAULT_SCENE = "fountain"
 
