@@ -18,7 +18,7 @@ SUPPORT_PER_SPACING = 2.0  # support radius H = 2 spacings (= 4 particle radii, 
 
 
 class FluidBuilder:
-    """Builder methods of the fluid kind: add_fluid, add_fluid_block."""
+    """Builder methods of the fluid kind: add_fluid, add_fluid_block, add_fluid_particles."""
 
     def _init_fluid(self) -> None:
         self._fluid: dict | None = None
@@ -102,6 +102,16 @@ class FluidBuilder:
         axes = [start[a] + d * np.arange(counts[a]) for a in range(3)]
         x = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
         v = np.broadcast_to(np.asarray(validate.vec3("velocity", velocity)), x.shape)
+        idx = self.add_particles(x, v, self.fluid_particle_mass())
+        self._fluid_particles.append(idx)
+        return idx
+
+    def add_fluid_particles(self, x, v=None) -> range:
+        """Add liquid particles at x (N,3) [m] with velocities v (N,3) [m/s] (default 0), e.g. another
+        tool's particle set; they should lie about a spacing apart, as add_fluid_block's lattice does
+        (each gets the mass of a lattice particle). Returns their indices."""
+        if self._fluid is None:
+            raise ParameterError("add_fluid_particles needs the liquid: call add_fluid(spacing=...) first")
         idx = self.add_particles(x, v, self.fluid_particle_mass())
         self._fluid_particles.append(idx)
         return idx

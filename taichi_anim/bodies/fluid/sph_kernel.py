@@ -47,6 +47,27 @@ def cubic_grad(d, support):
     return g
 
 
+@ti.func
+def cubic_w_grad(d, support):
+    """(W(|d|), grad W) of cubic_w and cubic_grad from one square root, for d = x_i - x_j [m]."""
+    r = d.norm()
+    q = r / support
+    sigma = 8.0 / (math.pi * support * support * support)
+    w = ti.cast(0.0, float)
+    g = ti.Vector.zero(float, 3)
+    if q <= 1.0:
+        scale = 6.0 * sigma / support  # 48 / (pi H^4)
+        dq = d / (r * support) if r > 1.0e-9 * support else ti.Vector.zero(float, 3)
+        if q <= 0.5:
+            w = sigma * (6.0 * (q * q * q - q * q) + 1.0)
+            g = scale * support * q * (3.0 * q - 2.0) * dq
+        else:
+            f = 1.0 - q
+            w = sigma * 2.0 * f * f * f
+            g = -scale * support * f * f * dq
+    return w, g
+
+
 def cubic_w_numpy(r, support: float):
     """W(r) [1/m^3] in NumPy, for setting up (masses of a lattice, boundary volumes) and for tests."""
     q = np.asarray(r, dtype=np.float64) / support
