@@ -134,7 +134,8 @@ def main() -> None:
     rows = [
         [name, r["particles"], r["steps"], f"{r['wall'] * 1e3:.2f}", f"{r['cpu'] * 1e3:.2f}",
          f"{r['particles'] / r['wall']:.3g}", f"{r['density_iterations']:.2f}",
-         f"{r['divergence_iterations']:.2f}", f"{r['mean_error'] * 100:.4f} %", f"{r['max_error'] * 100:.2f} %"]
+         f"{r['divergence_iterations']:.2f}", f"{r['mean_error'] * 100:.4f} %",
+         f"{r['max_error'] * 100:.2f} %"]
         for name, r in engines
     ]  # fmt: skip
     per_step = theirs["wall"] / ours["wall"] * ours["particles"] / theirs["particles"]

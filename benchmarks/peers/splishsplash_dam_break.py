@@ -40,8 +40,8 @@ def main(out: str, seconds: float, sample_every: int) -> None:
         ts, tm, fm = sim.getTimeStep(), sph.TimeManager.getCurrent(), sim.getFluidModel(0)
         iterations = (ts.getValueInt(sph.TimeStepDFSPH.SOLVER_ITERATIONS),
                       ts.getValueInt(sph.TimeStepDFSPH.SOLVER_ITERATIONS_V))  # fmt: skip
-        steps.append([time.perf_counter(), time.process_time(), float(tm.getTime()), float(tm.getTimeStepSize()),
-                      *iterations])  # fmt: skip
+        clocks = (time.perf_counter(), time.process_time())
+        steps.append([*clocks, float(tm.getTime()), float(tm.getTimeStepSize()), *iterations])
         n = fm.numActiveParticles()
         if len(steps) == 1:
             first["x"] = [[float(c) for c in fm.getPosition(i)] for i in range(n)]
