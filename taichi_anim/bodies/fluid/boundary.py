@@ -39,7 +39,7 @@ def boundary_samples(colliders, domain, spacing: float, reach: float) -> np.ndar
             parts.append(_plane(n, float(hs[1]) - 0.5 * spacing, lo, hi, spacing))
         else:
             v, faces = c.surface((lo, hi))
-            parts.append(_mesh(np.asarray(v, dtype=np.float64), faces, spacing))
+            parts.append(mesh_samples(np.asarray(v, dtype=np.float64), faces, spacing))
     x = np.concatenate(parts) if parts else np.zeros((0, 3))
     x = x[np.all((x >= lo) & (x <= hi), axis=1)]
     for n, offset in planes:  # deeper inside another plane's solid than its own layer: behind that wall
@@ -66,23 +66,28 @@ def _plane(n, offset: float, lo, hi, spacing: float) -> np.ndarray:
     return origin + ga.reshape(-1, 1) * u + gb.reshape(-1, 1) * w
 
 
-def _mesh(v, faces, spacing: float) -> np.ndarray:
-    """Samples at most `spacing` apart along every edge of every triangle (polygons fanned) and on a
-    barycentric grid inside it, each half a spacing behind its (outward) face."""
+def mesh_samples(v, faces, spacing: float) -> np.ndarray:
+    """Samples of every triangle (polygons fanned) each half a spacing behind its (outward) face: a
+    grid at most `spacing` apart along its two edges from the first corner (so the two triangles of a
+    square face continue one square grid), and its third edge sampled at most `spacing` apart."""
     out = []
     for face in faces:
         face = list(face)
         for k in range(1, len(face) - 1):
             a, b, c = v[face[0]], v[face[k]], v[face[k + 1]]
-            longest = max(np.linalg.norm(b - a), np.linalg.norm(c - a), np.linalg.norm(c - b))
-            n = max(1, math.ceil(longest / spacing))
-            i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
-            keep = i + j <= n
-            s, t = i[keep] / n, j[keep] / n
             normal = np.cross(b - a, c - a)
             length = np.linalg.norm(normal)
             if length == 0.0:
                 continue  # a degenerate triangle: its edges are sampled by its neighbours
+            nu = max(1, math.ceil(np.linalg.norm(b - a) / spacing))
+            nv = max(1, math.ceil(np.linalg.norm(c - a) / spacing))
+            nw = max(1, math.ceil(np.linalg.norm(c - b) / spacing))
+            i, j = np.meshgrid(np.arange(nu + 1), np.arange(nv + 1), indexing="ij")
+            s, t = (i / nu).ravel(), (j / nv).ravel()
+            keep = s + t <= 1.0 + 1e-9
+            s, t = s[keep], t[keep]
+            edge = np.arange(nw + 1) / nw  # the third edge, b to c
+            s, t = np.concatenate([s, 1.0 - edge]), np.concatenate([t, edge])
             inward = -0.5 * spacing * normal / length
             out.append(a + s[:, None] * (b - a) + t[:, None] * (c - a) + inward)
     return np.concatenate(out) if out else np.zeros((0, 3))

@@ -38,10 +38,14 @@ import taichi as ti
 
 from ...collision.neighbors import NeighborGrid
 from ...runtime import data_oriented, np_float
+from ..rigid.narrow_phase import body_sdf
+from ..rigid.quaternion import quat_matrix, world_inverse_inertia
+from .bodies import BodySamples
 from .boundary import boundary_samples
 from .sph_kernel import cubic_w, cubic_w_grad, lattice_sum
 
 FLUID_NEIGHBORS = 64  # listed fluid neighbours per particle (26 at rest; a compressed splash ~45)
+BODY_NEIGHBORS = 64  # listed samples of rigid bodies per particle (~13 at a face, ~40 at a corner)
 DIVERGENCE_MIN_NEIGHBORS = 20  # sparser particles (spray, the free surface) skip the divergence solve
 ERROR_SCALE = float(1 << 40)  # fixed-point unit of the summed errors
 # Warm starts: the share of the last step's summed stiffness a solve starts from. A kappa summed over
@@ -89,6 +93,12 @@ class FluidDynamics:
         # the neighbourhood pass took 2.1-3.7 ms against 3.3-4.0 (medians of runs that spread by 30 %),
         # the grid's build 0.3 ms more (it clears and scans every cell, serially).
         self.grid = NeighborGrid(n, 0.5 * self.support, domain=grow, make=make)
+        # Akinci's psi_b = rho0 V_b makes a flat layer worth 1.43 lattice layers at H = 2 spacings (it
+        # stands for the missing deeper layers), which packs a block filled up to a wall 6 % above rest
+        # density at its first layer. Scaled by one layer's share of the lattice sum, a flat wall
+        # sampled at the liquid's spacing is exactly the lattice continued: the block starts at rest.
+        plane = lattice_sum(self.spacing, self.support, 2)
+        self.layer_share = plane / lattice_sum(self.spacing, self.support)
         samples = boundary_samples(model.colliders, self.domain, self.spacing, self.support)
         self.boundary_count = len(samples)
         self.walls = self.boundary_count > 0  # compile-time: kernels visit boundary samples only if any
@@ -99,13 +109,15 @@ class FluidDynamics:
             bx.from_numpy(samples.astype(np_float()))
             self.boundary.build(bx)
             self.boundary_psi = make(self, "fluid_boundary_psi", float, self.boundary_count)
-            # Akinci's psi_b = rho0 V_b makes a flat layer worth 1.43 lattice layers at H = 2 spacings (it
-            # stands for the missing deeper layers), which packs a block filled up to a wall 6 % above rest
-            # density at its first layer. Scaled by one layer's share of the lattice sum, a flat wall
-            # sampled at the liquid's spacing is exactly the lattice continued: the block starts at rest.
-            plane = lattice_sum(self.spacing, self.support, 2)
-            self.layer_share = plane / lattice_sum(self.spacing, self.support)
             self._boundary_volumes()  # psi_b = rho0 / sum_b' W_bb' (Akinci et al. 2012, eq. 4-5)
+        # Rigid bodies in the liquid: samples on their surfaces, moving with them, and a grid over them
+        # built every substep (bodies.py).
+        self.coupled = model.rigid_count > 0
+        if self.coupled:
+            self.bodies = BodySamples(model, spacing=self.spacing, support=self.support,
+                                      rest_density=self.rest_density, layer_share=self.layer_share,
+                                      make=make)  # fmt: skip
+            self.body_grid = NeighborGrid(self.bodies.count, 0.5 * self.support, domain=grow, make=make)
         f = lambda role, dtype=float, dims=(), shape=n: make(self, role, dtype, shape, dims)  # noqa: E731
         self.cx, self.sv, self.sv2 = (f(f"fluid_{r}", dims=(3,)) for r in ("cx", "sv", "sv2"))
         self.rho, self.alpha, self.kappa, self.kacc = (f(f"fluid_{r}") for r in ("rho", "alpha", "k", "kacc"))
@@ -116,12 +128,16 @@ class FluidDynamics:
         self.grad = f("fluid_grad", dims=(3,), shape=(n, FLUID_NEIGHBORS))
         self.wall_grad = f("fluid_wall_grad", dims=(3,))
         self.weight = f("fluid_weight", shape=(n, FLUID_NEIGHBORS))  # W_kj, for XSPH
+        if self.coupled:  # each particle's body samples: index and psi_b grad W
+            self.body_n = f("fluid_body_n", ti.i32)
+            self.body_nbr = f("fluid_body_nbr", ti.i32, shape=(n, BODY_NEIGHBORS))
+            self.body_grad = f("fluid_body_grad", dims=(3,), shape=(n, BODY_NEIGHBORS))
         self.err_sum = f("fluid_err_sum", ti.i64, shape=())
         self.err_max = f("fluid_err_max", shape=())
         self.overflow = f("fluid_overflow", ti.i32, shape=())
         self.speed = f("fluid_speed", shape=())
         vec = ti.types.vector(3, float)  # made after ti.init: `float` is the chosen precision
-        self._sums = ti.types.struct(n=ti.i32, bn=ti.i32, rho=float, g=vec, sq=float, wg=vec)
+        self._sums = ti.types.struct(n=ti.i32, bn=ti.i32, mb=ti.i32, rho=float, g=vec, sq=float, wg=vec)
         self.overflow[None] = 0
         self.totals = dict(steps=0, density_iterations=0, divergence_iterations=0, unconverged_steps=0,
                            mean_error_max=0.0, max_error_max=0.0)  # fmt: skip
@@ -142,6 +158,9 @@ class FluidDynamics:
         """Neighbourhoods, densities and factors at the substep's start; the divergence solve."""
         self._gather_positions(state, model)
         self.grid.build(self.cx, model.fluid_count)
+        if self.coupled:
+            self.bodies.place(model, state)
+            self.body_grid.build(self.bodies.x, self.bodies.count)
         self._neighborhoods(state, model)
         iterations, mean, _ = self._solve(h, divergence=True, state=state)
         self.last = dict(divergence_iterations=iterations, divergence_error=mean)
@@ -202,6 +221,8 @@ class FluidDynamics:
         solve at most one of them, as SPlisHSPlasH's): (iterations, mean error, largest error) of the
         final velocities."""
         n = self.model.fluid_count
+        if self.coupled:
+            self.bodies.move(self.model, state)  # the bodies' velocities now (the samples' speeds)
         tol = self.divergence_tolerance if divergence else self.tolerance
         least = min(self.min_iterations, 1) if divergence else self.min_iterations
         self._start(state, self.model, h, divergence)
@@ -211,15 +232,23 @@ class FluidDynamics:
             self._iterate(h, divergence)
             it += 1
             mean = int(self.err_sum[None]) / ERROR_SCALE / n
+        if self.coupled:
+            # The bodies take their impulses once per solve. Giving them back after every iteration
+            # (the samples then moving within the solve) changed neither a floating plank's heave
+            # nor its tilt over 3 s, so the cheaper exchange stays.
+            self._push_bodies(self.model, state, h)
         return it, mean, float(self.err_max[None])
 
     @ti.func
     def _flux(self, k):
         """Drho_k/Dt [kg/m^3/s] from the slot velocities (static boundary)."""
         vi = self.sv[k]
-        d = vi.dot(self.wall_grad[k])
+        d = vi.dot(self.wall_grad[k])  # every boundary sample, the bodies' at rest
         for m in range(self.nn[k]):
             d += (vi - self.sv[self.nbr[k, m]]).dot(self.grad[k, m])
+        if ti.static(self.coupled):  # the bodies' samples move
+            for m in range(self.body_n[k]):
+                d -= self.bodies.v[self.body_nbr[k, m]].dot(self.body_grad[k, m])
         return d
 
     @ti.func
@@ -331,18 +360,61 @@ class FluidDynamics:
         acc.rho += psi * w
         acc.wg += psi * g
 
+    @ti.func
+    def _add_body(self, k, slot, acc: ti.template()):
+        """A body's sample: its share of the density and gradient sums, listed with psi_b grad W."""
+        s = self.body_grid.sorted_id[slot]
+        w, g = cubic_w_grad(self.grid.sorted_x[k] - self.body_grid.sorted_x[slot], self.support)
+        psi = self.bodies.psi[s]
+        acc.rho += psi * w
+        acc.wg += psi * g
+        if acc.mb < BODY_NEIGHBORS:
+            self.body_nbr[k, acc.mb] = s
+            self.body_grad[k, acc.mb] = psi * g
+            acc.mb += 1
+        else:
+            ti.atomic_add(self.overflow[None], 1)
+
+    @ti.kernel
+    def _push_bodies(self, model: ti.template(), state: ti.template(), h: float):
+        """Each pair's pressure correction of a particle, given back to the body at the sample:
+        J = m_i h kappa_i psi_b grad W_ib (summed over the solve's iterations), in particle order."""
+        ti.loop_config(serialize=True)
+        for b in range(model.live_rigid()):
+            self.bodies.impulse[b] = ti.Vector.zero(float, 3)
+            self.bodies.moment[b] = ti.Vector.zero(float, 3)
+        ti.loop_config(serialize=True)
+        for k in range(model.fluid_count):
+            for m in range(self.body_n[k]):
+                s = self.body_nbr[k, m]
+                b = self.bodies.owner[s]
+                j = (self.mass * h * self.kacc[k]) * self.body_grad[k, m]
+                self.bodies.impulse[b] += j
+                self.bodies.moment[b] += (self.bodies.x[s] - state.rigid_x[b]).cross(j)
+        ti.loop_config(serialize=True)
+        for b in range(model.live_rigid()):
+            if model.rigid_inv_mass[b] > 0.0:
+                r = quat_matrix(state.rigid_q[b])
+                state.rigid_v[b] += self.bodies.impulse[b] * model.rigid_inv_mass[b]
+                inv_inertia = world_inverse_inertia(r, model.rigid_inv_moments[b])
+                state.rigid_w[b] += inv_inertia @ self.bodies.moment[b]
+
     @ti.kernel
     def _neighborhoods(self, state: ti.template(), model: ti.template()):
         """Each slot's neighbour list, density, factor alpha and velocity, in one pass over the cells."""
         for k in range(model.fluid_count):
             xi = self.grid.sorted_x[k]
             zero = ti.Vector.zero(float, 3)
-            acc = self._sums(n=0, bn=0, rho=self.mass * cubic_w(0.0, self.support), g=zero, sq=0.0, wg=zero)
+            rho = self.mass * cubic_w(0.0, self.support)
+            acc = self._sums(n=0, bn=0, mb=0, rho=rho, g=zero, sq=0.0, wg=zero)
             self._near(self.grid, k, xi, self._add_fluid, acc)
             if ti.static(self.walls):
                 self._near(self.boundary, k, xi, self._add_boundary, acc)
+            if ti.static(self.coupled):
+                self._near(self.body_grid, k, xi, self._add_body, acc)
+                self.body_n[k] = acc.mb
             self.nn[k] = ti.min(acc.n, FLUID_NEIGHBORS)
-            self.bn[k] = acc.bn
+            self.bn[k] = acc.bn + acc.mb  # every boundary sample, the walls' and the bodies'
             self.wall_grad[k] = acc.wg
             grad_sum = acc.g + acc.wg
             den = grad_sum.dot(grad_sum) + acc.sq
@@ -371,9 +443,26 @@ class FluidDynamics:
                 dv += (self.sv2[kk] - vi) * (2.0 * self.weight[k, m] / (rho + self.rho[kk]))
             self.sv[k] = vi + c * self.mass * dv
 
+    @ti.func
+    def _outside_bodies(self, model: ti.template(), state: ti.template(), x):
+        """x moved out to the surface of every body it entered (the bodies' samples push; this only puts
+        a particle the pressure let through back outside, where the next solve sees it). Position only,
+        so the momentum the liquid and the bodies exchange is the pressure's alone; to the surface only:
+        pushed out to half a spacing, without the impact's velocity, a floating plank tipped over
+        within 2 s."""
+        r = 0.0
+        for b in range(model.live_rigid()):
+            xb = state.rigid_x[b]
+            if (x - xb).norm() < model.rigid_bound[b] + r:
+                d, n = body_sdf(model, b, xb, quat_matrix(state.rigid_q[b]), x)
+                if d < r:
+                    x += (r - d) * n
+        return x
+
     @ti.kernel
     def _finish(self, state: ti.template(), model: ti.template(), h: float, t: float):
-        """x = x(start) + h v; colliders' surfaces as a last guard; write back; record p and rho."""
+        """x = x(start) + h v; colliders' and bodies' surfaces as a last guard (half a spacing away, where
+        the liquid's volume ends); write back; record p and rho."""
         for k in range(model.fluid_count):
             j = self.grid.sorted_id[k]
             p = model.fluid_particle[j]
@@ -381,11 +470,13 @@ class FluidDynamics:
             x = self.grid.sorted_x[k] + h * v
             for c in ti.static(model.colliders):
                 d, n, vs = c.contact(x, t)
-                if d < 0.0:
-                    x -= d * n
+                if d < 0.5 * self.spacing:
+                    x += (0.5 * self.spacing - d) * n
                     vn = (v - vs).dot(n)
                     if vn < 0.0:
                         v -= vn * n
+            if ti.static(self.coupled):
+                x = self._outside_bodies(model, state, x)
             state.particle_x[p] = x
             state.particle_v[p] = v
             state.fluid_kappa[j] = self.kacc[k] * h * h

@@ -14,7 +14,8 @@ class FluidModel:
     """Model methods of the fluid kind (the Model inherits them).
 
     fluid_count; fluid_particles (F,) the particle index of each fluid particle (NumPy) and
-    fluid_particle (F,) the same as a field for kernels (None without liquid); fluid_spacing [m],
+    fluid_particle (F,) the same as a field for kernels (None without liquid), particle_is_fluid (N,) 1
+    for a liquid particle (liquid(i) reads it); fluid_spacing [m],
     fluid_support [m] (the SPH support radius), fluid_density [kg/m^3] at rest, fluid_mass [kg] per
     particle; fluid: the solver's options (None without liquid), which the Stepper builds its solver
     from (solvers.SOLVERS)."""
@@ -35,3 +36,16 @@ class FluidModel:
         self.fluid_mass = float(options["mass"])
         self.fluid_particle = self.new_field(self, "fluid_particle", ti.i32, self.fluid_count)
         self.fluid_particle.from_numpy(self.fluid_particles.astype(np.int32))
+        mask = np.zeros(self.particle_count, dtype=np.int32)
+        mask[self.fluid_particles] = 1
+        self.particle_is_fluid = self.particle_array(self, "particle_is_fluid", ti.i32)
+        self.particle_is_fluid.from_numpy(self.padded(mask, np.int32))
+
+    @ti.func
+    def liquid(self, i):
+        """Whether particle i is liquid (Taichi scope; False at compile time without liquid): the liquid
+        meets bodies through its pressure solve (bodies/fluid/bodies.py), not particle impacts."""
+        out = False
+        if ti.static(self.fluid_count > 0):
+            out = self.particle_is_fluid[i] != 0
+        return out

@@ -10,6 +10,8 @@ point. The particle is then moved out to the surface (a position correction, no 
 restitution and friction coefficients are used. A cloth vertex is a particle: a cloth lying on a body
 weighs on it through these impulses.
 
+Liquid particles are left out: they meet bodies through the liquid's pressure solve (bodies/fluid/).
+
 The loop runs serially over the particles (each one's impulses land on the bodies in particle order: the
 result does not depend on the thread count), testing every body's bounding sphere first."""
 
@@ -50,7 +52,7 @@ class ParticleCoupling:
         self.time[None] = t
         ti.loop_config(serialize=True)
         for i in range(model.live_particles()):
-            if model.alive(state, i, t):
+            if model.alive(state, i, t) and not model.liquid(i):
                 self._particle(model, state, i)
 
     @ti.func
