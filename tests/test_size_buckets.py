@@ -127,7 +127,7 @@ def buckets_reset():
 @pytest.mark.parametrize(
     "name, frames",
     [
-        ("fountain", 30),
+        pytest.param("fountain", 30, marks=pytest.mark.slow),  # 16 s; emitters' buckets: the no-kernel test
         ("cloth", 10),
         ("spheres", 10),
         # the sheets need 130 frames to reach the ball (34 s, loaded 2 cores): self-contact under buckets

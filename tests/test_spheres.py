@@ -185,6 +185,7 @@ def test_a_pile_of_spheres_comes_to_rest(side, layers):
     assert np.all(xs >= lo + r - 1e-6) and np.all(xs <= hi - r + 1e-6)
 
 
+@pytest.mark.slow  # 18 s on 2 cores; test_neighbors.py checks every structure against brute force
 def test_grid_hash_grid_and_brute_force_agree():
     """The same falling pile with each neighbour structure: the same contacts, so the same motion."""
     r = 0.01
@@ -204,6 +205,7 @@ def test_grid_hash_grid_and_brute_force_agree():
     assert np.abs(out["hash_grid"] - out["brute"]).max() < 1e-6
 
 
+@pytest.mark.slow  # 14 s on 2 cores; the mixed-sphere case below checks the same at one and two threads
 def test_same_result_on_one_and_two_threads():
     r = 0.01
     x, v, box = pile(20, 4, r, seed=5)

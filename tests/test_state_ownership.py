@@ -44,7 +44,14 @@ def _two_runs(model, make, dt, steps, kick):
 
 @pytest.mark.parametrize(
     "case",
-    ["emitter", "implicit_warm_start", "rk45_adaptive", "step_doubling"],
+    # The adaptive methods' carry (11-16 s each on 2 cores) is slow; the emitter's and the implicit
+    # solve's stay in the default suite.
+    [
+        "emitter",
+        "implicit_warm_start",
+        pytest.param("rk45_adaptive", marks=pytest.mark.slow),
+        pytest.param("step_doubling", marks=pytest.mark.slow),
+    ],
 )
 def test_two_states_of_one_model_evolve_independently(case):
     if case == "emitter":
