@@ -138,3 +138,21 @@ def test_bad_fluid_input_is_refused():
     model = b.finalize()
     with pytest.raises(ParameterError, match="static"):
         ta.make_integrator("symplectic_euler").stepper_for(model)
+
+
+def test_the_dam_breaks_surface_is_closed_and_holds_the_particles_volume():
+    """The dam_break demo's blob surface of its column at rest (the half level of the particles'
+    Gaussian field, scenes/dam_break.py): a closed manifold (every edge between exactly two triangles)
+    whose volume is the particles' (count x spacing^3) within 5 %; measured 0.970 (the field rounds
+    the block's edges and corners)."""
+    from taichi_anim.scenes import make_scene
+
+    scene = make_scene("dam_break")
+    mesh = scene.mesh()
+    v, t = mesh.vertices, mesh.triangles
+    edges = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    assert (counts == 2).all()
+    volume = np.einsum("ij,ij->i", v[t[:, 0]], np.cross(v[t[:, 1]], v[t[:, 2]])).sum() / 6.0
+    particles = scene.model.fluid_count * scene.model.fluid_spacing**3
+    assert volume / particles == pytest.approx(1.0, abs=0.05)

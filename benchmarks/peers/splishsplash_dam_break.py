@@ -19,16 +19,14 @@ import numpy as np
 
 
 def scene_file() -> Path:
-    """DamBreakModel.json from the wheel's data folder (installed beside the interpreter's bin)."""
-    return Path(sys.executable).resolve().parent.parent / "bin" / "data" / "Scenes" / "DamBreakModel.json"
+    """DamBreakModel.json from the wheel's data folder (installed under the environment's bin/)."""
+    return Path(sys.prefix) / "bin" / "data" / "Scenes" / "DamBreakModel.json"
 
 
 def main(out: str, seconds: float, sample_every: int) -> None:
     import pysplishsplash as sph
 
     scene = scene_file()
-    if not scene.exists():
-        scene = Path(sys.prefix) / "bin" / "data" / "Scenes" / "DamBreakModel.json"
     base = sph.Exec.SimulatorBase()
     base.init(useGui=False, sceneFile=str(scene), outputDir=str(Path(out).parent / "splishsplash_out"))
     base.setValueFloat(base.STOP_AT, float(seconds))

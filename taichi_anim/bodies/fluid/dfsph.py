@@ -147,12 +147,15 @@ class FluidDynamics:
     # --- the protocol -------------------------------------------------------------------------
 
     def substeps(self, model, state, dt: float) -> int:
-        """CFL: substeps so that no particle moves more than cfl spacings in one (Bender & Koschier
-        2017, eq. 13), counting the speed gravity adds over the step, and none longer than max_step."""
+        """CFL: the fewest equal substeps h = dt / n in which no particle moves more than cfl spacings,
+        h (v_max + g h) <= cfl d (Bender & Koschier 2017, eq. 13, with the speed gravity adds over the
+        substep), none longer than max_step."""
         self._max_speed(state, model)
-        v = float(self.speed[None]) + self.gravity * dt
-        n = max(math.ceil(dt * v / (self.cfl * self.spacing)), math.ceil(dt / self.max_step - 1e-9), 1)
-        return int(min(n, self.max_substeps))
+        v, reach = float(self.speed[None]), self.cfl * self.spacing
+        n = max(math.ceil(dt / self.max_step - 1e-9), 1)
+        while n < self.max_substeps and (dt / n) * (v + self.gravity * dt / n) > reach:
+            n += 1
+        return n
 
     def before_substep(self, model, state, h: float) -> None:
         """Neighbourhoods, densities and factors at the substep's start; the divergence solve."""
