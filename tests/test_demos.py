@@ -31,6 +31,11 @@ def test_demo_runs_and_exports(name, tmp_path, capsys):
     assert manifest["settings"]["dt"] > 0 and "integrator" in manifest["settings"]
     assert manifest["timings"]["steps"] == 4 * manifest["settings"]["substeps"]
     assert (tmp_path / f"{name}_last.png").stat().st_size > 1000
+    liquid = manifest["settings"]["model"].get("fluid")
+    if liquid:  # a liquid records each frame's pressure solves, within its tolerance
+        frames = manifest["timings"]["solver_frames"]["fluid"]
+        assert len(frames) == 4 and all(f["steps"] >= 1 and f["density_iterations"] >= 1 for f in frames)
+        assert max(f["mean_density_error"] for f in frames) <= liquid["tolerance"]
     cloths = manifest["settings"]["model"]["cloths"]
     bodies = manifest["settings"]["model"].get("rigid_bodies", [])
     if bodies:  # rigid bodies export as one mesh of every body at its pose

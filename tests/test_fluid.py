@@ -156,3 +156,29 @@ def test_the_dam_breaks_surface_is_closed_and_holds_the_particles_volume():
     volume = np.einsum("ij,ij->i", v[t[:, 0]], np.cross(v[t[:, 1]], v[t[:, 2]])).sum() / 6.0
     particles = scene.model.fluid_count * scene.model.fluid_spacing**3
     assert volume / particles == pytest.approx(1.0, abs=0.05)
+
+
+@pytest.mark.slow  # two f32 compiles (the thread count is in Taichi's cache key): 20-50 s on 2 cores
+def test_same_bits_on_one_and_two_threads():
+    """A collapsing column with a floating box, on one thread and on two: the same positions bit for
+    bit (the same kernels; the errors' sum is in fixed point, the bodies' impulses summed serially, and
+    the grid lists each cell's particles in index order)."""
+
+    def run(threads):
+        ta.init("cpu", precision="f32", cpu_threads=threads)
+        b = ta.Builder()
+        b.add_force_gravity()
+        b.add_collider_box((0.0, 0.0, 0.0), (0.3, 0.3, 0.1), restitution=0.0)
+        b.add_fluid(spacing=0.02)
+        b.add_fluid_block((0.0, 0.0, 0.0), (0.1, 0.2, 0.1))
+        b.add_rigid_body(ta.shapes.Box((0.03, 0.03, 0.03)), density=500.0, position=(0.2, 0.05, 0.05))
+        model = b.finalize()
+        state = model.state()
+        stepper = ta.make_integrator("symplectic_euler").stepper_for(model)
+        for _ in range(12):
+            stepper.advance(state, 1.0 / 60.0, 1)
+        return state.positions(), state.rigid_snapshot().position
+
+    x1, body1 = run(1)
+    x2, body2 = run(2)
+    assert np.array_equal(x1, x2) and np.array_equal(body1, body2)

@@ -1,7 +1,9 @@
 """The fluid kind's builder part: one incompressible liquid per scene (`add_fluid`: its particle
-spacing, rest density and pressure solver) and blocks of it (`add_fluid_block`). Fluid particles are
-particles (bodies/particles/): gravity, colliders, emitters' output and every exporter treat them as
-such; the fluid's solver (dfsph.py) makes them incompressible."""
+spacing, rest density and pressure solver), blocks of it (`add_fluid_block`) and particle sets
+(`add_fluid_particles`). Liquid particles are particles (bodies/particles/) of radius 0: gravity, the
+integrator, the exporters and the renderer treat them as such, colliders and bodies only stop them
+crossing a surface; the liquid's solver (dfsph.py) makes them incompressible and keeps them half a
+spacing from every surface."""
 
 from __future__ import annotations
 
@@ -45,12 +47,13 @@ class FluidBuilder:
         Koschier 2015): each step's pressure solve iterates until the mean predicted density error is
         below `tolerance` (a fraction of the rest density: 5e-4 = 0.05 %, SPlisHSPlasH's dam break), the
         divergence solve until the mean density change over a step is below `divergence_tolerance`,
-        between `min_iterations` and `max_iterations` each; `viscosity`: XSPH's coefficient in [0, 1]
-        (Monaghan 1989: each particle takes that fraction of its neighbours' kernel-weighted velocity
-        difference per step); `cfl`: a step moves no particle more than this fraction of a
-        spacing (the solver splits a step into at most `max_substeps`); `domain` (lo, hi) [m]: where the
-        liquid can go (default: the container box, else 3 times the blocks' extent), which bounds the
-        neighbour grid and the boundary samples of planes."""
+        with at least `min_iterations` (the divergence solve at most one) and at most `max_iterations`
+        each; `viscosity`: XSPH's coefficient in [0, 1] (Monaghan 1989: each particle takes that
+        fraction of its neighbours' kernel-weighted velocity difference per step); `cfl`: a substep
+        moves no particle more than this fraction of a spacing, and lasts at most `max_step` [s] (the
+        solver splits a step into at most `max_substeps`); `domain` (lo, hi) [m]: where the liquid can
+        go (default: the container box, else 3 times the blocks' extent), which bounds the neighbour
+        grid and the boundary samples of planes."""
         if self._fluid is not None:
             raise ParameterError("add_fluid was already called: a scene holds one liquid")
         validate.choice("method", method, list(METHODS))

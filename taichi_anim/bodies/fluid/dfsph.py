@@ -198,7 +198,8 @@ class FluidDynamics:
 
     def frame_stats(self) -> dict:
         """The steps since the last call, summed up for run.json's per-frame record: steps, pressure
-        iterations (density and divergence), the mean and largest density error after the solves."""
+        iterations (density and divergence), the largest mean and largest single density error after
+        the density solves, and the neighbours left out of full lists since the run started."""
         steps, self._frame = self._frame, []
         if not steps:
             return {}
