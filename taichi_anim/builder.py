@@ -225,10 +225,7 @@ class Builder(*BUILDER_PARTS):
         particles inside); solid=True: a solid block (a thin one is a slab) that keeps them out;
         motion: a RigidMotion that moves the box (lo, hi in its frame), or None (static)."""
         motion = _motion(motion)
-        lo = np.asarray(validate.vec3("lo", lo))
-        hi = np.asarray(validate.vec3("hi", hi))
-        if np.any(hi <= lo):
-            raise ParameterError(f"hi must exceed lo on every axis, got lo={lo.tolist()}, hi={hi.tolist()}")
+        lo, hi = validate.box("add_collider_box", lo, hi)
         e = validate.in_range("restitution", restitution, 0.0, 1.0)
         mu = validate.non_negative("friction", friction)
         if validate.flag("solid", solid):

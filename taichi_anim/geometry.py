@@ -344,10 +344,7 @@ def _check_manifold(tris: np.ndarray, name: str) -> None:
 def box_mesh(lo, hi) -> tuple[np.ndarray, np.ndarray]:
     """A closed axis-aligned box from lo to hi [m] as (vertices (8,3), triangles (12,3)), counter-clockwise
     seen from outside (outward normals)."""
-    lo = np.asarray(validate.vec3("lo", lo))
-    hi = np.asarray(validate.vec3("hi", hi))
-    if np.any(hi <= lo):
-        raise ParameterError(f"hi must exceed lo on every axis, got lo={lo.tolist()}, hi={hi.tolist()}")
+    lo, hi = validate.box("box", lo, hi)
     corner = np.array(list(itertools.product((0, 1), repeat=3)))  # index 4x + 2y + z
     vertices = np.where(corner == 1, hi, lo)
     faces = [

@@ -140,6 +140,18 @@ def vec3(name: str, value: Iterable[float]) -> tuple[float, float, float]:
     return float(a[0]), float(a[1]), float(a[2])
 
 
+def box(name: str, lo, hi) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) of an axis-aligned box [m] as float arrays; ParameterError naming `name` unless both are
+    finite 3-vectors with hi > lo on every axis."""
+    lo = np.asarray(vec3(f"{name} lo", lo))
+    hi = np.asarray(vec3(f"{name} hi", hi))
+    if np.any(hi <= lo):
+        raise ParameterError(
+            f"{name}: hi must exceed lo on every axis, got lo={lo.tolist()}, hi={hi.tolist()}"
+        )
+    return lo, hi
+
+
 def unit3(name: str, value: Iterable[float]) -> tuple[float, float, float]:
     """Return the normalised 3-vector, raising on a zero or non-finite vector."""
     v = np.asarray(vec3(name, value))

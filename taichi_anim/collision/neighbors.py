@@ -148,10 +148,7 @@ class NeighborGrid(_NeighborSearch):
         else:
             if len(domain) != 2:
                 raise ParameterError(f"domain must be (lo, hi), got {domain!r}")
-            lo = np.asarray(validate.vec3("domain lo", domain[0]))
-            hi = np.asarray(validate.vec3("domain hi", domain[1]))
-            if np.any(hi <= lo):
-                raise ParameterError(f"domain must have lo < hi, got lo={lo}, hi={hi}")
+            lo, hi = validate.box("domain", *domain)
             limit = max(MAX_CELLS_PER_PARTICLE * self.capacity, 64)
             while np.prod(np.ceil((hi - lo) / h)) > limit:
                 h *= 1.25  # bigger cells: fewer to clear and scan, more candidates per query

@@ -18,7 +18,6 @@ from ...rotations import quat_to_matrix
 from ...runtime import data_oriented, np_float
 from ..rigid.quaternion import quat_matrix
 from .boundary import mesh_samples
-from .sph_kernel import cubic_w_numpy
 
 
 def body_samples(model, spacing: float) -> tuple[np.ndarray, np.ndarray]:
@@ -41,36 +40,32 @@ class BodySamples:
     """The boundary samples of a model's rigid bodies: local positions, owners and volumes (static),
     world positions and velocities (each substep), the impulses the liquid gives back."""
 
-    def __init__(self, model, *, spacing: float, support: float, rest_density: float, layer_share: float,
-                 make):  # fmt: skip
+    def __init__(self, model, spacing: float, make):
         local, owner = body_samples(model, spacing)
         self.count = len(local)
-        self.support, self.rest_density, self.layer_share = support, rest_density, layer_share
+        self._local, self._owner = local, owner
         self.local = make(self, "fluid_body_local", float, self.count, (3,))
         self.owner = make(self, "fluid_body_owner", ti.i32, self.count)
-        self.psi = make(self, "fluid_body_psi", float, self.count)
+        self.psi = make(self, "fluid_body_psi", float, self.count)  # filled by the solver (_volumes)
         self.x = make(self, "fluid_body_x", float, self.count, (3,))  # world, at the substep's start
         self.v = make(self, "fluid_body_v", float, self.count, (3,))
         self.local.from_numpy(local.astype(np_float()))
         self.owner.from_numpy(owner.astype(np.int32))
-        self.psi.from_numpy(self._volumes(local, owner, spacing).astype(np_float()))
         b = model.rigid_count
         self.impulse = make(self, "fluid_body_impulse", float, b, (3,))
         self.moment = make(self, "fluid_body_moment", float, b, (3,))
 
-    def _volumes(self, local, owner, spacing: float) -> np.ndarray:
-        """psi_b = rho0 V_b, V_b = 1 / sum over the same body's samples of W (boundary.py), per body with
-        NumPy in blocks of rows (bodies hold a few thousand samples)."""
-        psi = np.zeros(len(local))
-        for b in np.unique(owner):
-            idx = np.flatnonzero(owner == b)
-            x = local[idx]
-            total = np.zeros(len(idx))
-            for s in range(0, len(idx), 512):
-                r = np.linalg.norm(x[s : s + 512, None, :] - x[None, :, :], axis=2)
-                total[s : s + 512] = cubic_w_numpy(r, self.support).sum(axis=1)
-            psi[idx] = self.layer_share * self.rest_density / total
-        return psi
+    def apart(self, reach: float):
+        """(positions field (S,3), lo, hi): every body's samples in its own frame, the bodies set side by
+        side along x more than `reach` [m] apart, so that a neighbour search finds each body's own
+        samples only (their volumes, psi_b)."""
+        extent = float(np.abs(self._local).max()) if self.count else 0.0
+        step = 2.0 * extent + 2.0 * reach
+        x = self._local.copy()
+        x[:, 0] += step * self._owner
+        field = ti.Vector.field(3, float, self.count)
+        field.from_numpy(x.astype(np_float()))
+        return field, x.min(axis=0) - reach, x.max(axis=0) + reach
 
     @ti.kernel
     def place(self, model: ti.template(), state: ti.template()):

@@ -60,11 +60,7 @@ class FluidBuilder:
         if domain is not None:
             if len(domain) != 2:
                 raise ParameterError(f"domain must be (lo, hi), got {domain!r}")
-            lo = np.asarray(validate.vec3("domain lo", domain[0]))
-            hi = np.asarray(validate.vec3("domain hi", domain[1]))
-            if np.any(hi <= lo):
-                raise ParameterError(f"domain must have lo < hi, got lo={lo.tolist()}, hi={hi.tolist()}")
-            domain = (lo, hi)
+            domain = validate.box("domain", *domain)
         self._fluid = dict(
             spacing=validate.positive("spacing", spacing),
             density=validate.positive("density", density),
@@ -89,10 +85,7 @@ class FluidBuilder:
         spacing, centred in the box, moving at `velocity` [m/s]. Returns the particles' indices."""
         if self._fluid is None:
             raise ParameterError("add_fluid_block needs the liquid: call add_fluid(spacing=...) first")
-        lo = np.asarray(validate.vec3("lo", lo))
-        hi = np.asarray(validate.vec3("hi", hi))
-        if np.any(hi <= lo):
-            raise ParameterError(f"hi must exceed lo on every axis, got lo={lo.tolist()}, hi={hi.tolist()}")
+        lo, hi = validate.box("add_fluid_block", lo, hi)
         d = self._fluid["spacing"]
         counts = np.floor((hi - lo) / d + 1e-9).astype(np.int64)
         if np.any(counts < 1):

@@ -38,6 +38,7 @@ import taichi as ti
 
 from ...collision.neighbors import NeighborGrid
 from ...runtime import data_oriented, np_float
+from ..rigid.dynamics import body_acceleration
 from ..rigid.narrow_phase import body_sdf
 from ..rigid.quaternion import quat_matrix, world_inverse_inertia
 from .bodies import BodySamples
@@ -54,16 +55,6 @@ ERROR_SCALE = float(1 << 40)  # fixed-point unit of the summed errors
 # few neighbours and large alpha, overshoot first), half of it is stable and takes 20 density
 # iterations per step against 34-44 without (the column of tests/test_fluid.py at 2 cm spacing).
 WARM_DENSITY, WARM_DIVERGENCE = 0.5, 0.0
-
-
-def _dynamic_acceleration(model) -> float:
-    """|g| [m/s^2] of the pointwise terms that say they act on every body (gravity)."""
-    g = np.zeros(3)
-    for term in model.point_terms:
-        accel = getattr(term, "body_acceleration", None)
-        if accel is not None:
-            g += np.asarray(accel(), dtype=np.float64)
-    return float(np.linalg.norm(g))
 
 
 @data_oriented
@@ -84,7 +75,7 @@ class FluidDynamics:
         self.spacing, self.rest_density, self.mass = float(spacing), float(density), float(mass)
         self.support = model.fluid_support
         self.domain = (np.asarray(domain[0], dtype=np.float64), np.asarray(domain[1], dtype=np.float64))
-        self.gravity = _dynamic_acceleration(model)
+        self.gravity = float(np.linalg.norm(body_acceleration(model)))  # |g| of the terms acting on all
         n = model.fluid_count
         make = model.new_field
         grow = (self.domain[0] - self.support, self.domain[1] + self.support)
@@ -109,14 +100,17 @@ class FluidDynamics:
             bx.from_numpy(samples.astype(np_float()))
             self.boundary.build(bx)
             self.boundary_psi = make(self, "fluid_boundary_psi", float, self.boundary_count)
-            self._boundary_volumes()  # psi_b = rho0 / sum_b' W_bb' (Akinci et al. 2012, eq. 4-5)
+            self._volumes(self.boundary, self.boundary_psi, False)
         # Rigid bodies in the liquid: samples on their surfaces, moving with them, and a grid over them
         # built every substep (bodies.py).
         self.coupled = model.rigid_count > 0
         if self.coupled:
-            self.bodies = BodySamples(model, spacing=self.spacing, support=self.support,
-                                      rest_density=self.rest_density, layer_share=self.layer_share,
-                                      make=make)  # fmt: skip
+            self.bodies = BodySamples(model, self.spacing, make)
+            # Each body's samples apart from the others' (its own volumes only), in one grid.
+            apart, lo, hi = self.bodies.apart(self.support)
+            grid = NeighborGrid(self.bodies.count, 0.5 * self.support, domain=(lo, hi), make=make)
+            grid.build(apart)
+            self._volumes(grid, self.bodies.psi, True)
             self.body_grid = NeighborGrid(self.bodies.count, 0.5 * self.support, domain=grow, make=make)
         f = lambda role, dtype=float, dims=(), shape=n: make(self, role, dtype, shape, dims)  # noqa: E731
         self.cx, self.sv, self.sv2 = (f(f"fluid_{r}", dims=(3,)) for r in ("cx", "sv", "sv2"))
@@ -322,8 +316,8 @@ class FluidDynamics:
 
     @ti.func
     def _near(self, grid: ti.template(), k, p, visit: ti.template(), acc: ti.template()):
-        """visit(k, slot, acc) for every slot of `grid` within the support of p: the 5 x 5 columns of
-        5 cells around p's cell (NeighborGrid makes cells at least the half support it is given)."""
+        """visit(k, slot, p - x_slot, acc) for every slot of `grid` within the support of p: the 5 x 5
+        columns of 5 cells around p's cell (NeighborGrid makes cells at least the half support given)."""
         base = grid.coords(p)
         dims = grid.dims
         z0 = ti.max(base[2] - 2, 0)
@@ -335,14 +329,15 @@ class FluidDynamics:
             if 0 <= cx < dims[0] and 0 <= cy < dims[1]:
                 row = (cx * dims[1] + cy) * dims[2]  # cells adjacent in z are adjacent in memory
                 for kk in range(grid.cell_start[row + z0], grid.cell_start[row + z1 + 1]):
-                    if (grid.sorted_x[kk] - p).norm_sqr() < r2:
-                        visit(k, kk, acc)
+                    d = p - grid.sorted_x[kk]
+                    if d.norm_sqr() < r2:
+                        visit(k, kk, d, acc)
 
     @ti.func
-    def _add_fluid(self, k, kk, acc: ti.template()):
+    def _add_fluid(self, k, kk, d, acc: ti.template()):
         """A fluid neighbour: listed with m grad W, and its share of the density and of alpha's sums."""
         if kk != k:
-            w, g = cubic_w_grad(self.grid.sorted_x[k] - self.grid.sorted_x[kk], self.support)
+            w, g = cubic_w_grad(d, self.support)
             g *= self.mass
             acc.rho += self.mass * w
             acc.g += g
@@ -356,19 +351,19 @@ class FluidDynamics:
             acc.n += 1
 
     @ti.func
-    def _add_boundary(self, k, b, acc: ti.template()):
+    def _add_boundary(self, k, b, d, acc: ti.template()):
         """A boundary sample's share of the density and of the gradient sum."""
-        w, g = cubic_w_grad(self.grid.sorted_x[k] - self.boundary.sorted_x[b], self.support)
+        w, g = cubic_w_grad(d, self.support)
         psi = self.boundary_psi[b]
         acc.bn += 1
         acc.rho += psi * w
         acc.wg += psi * g
 
     @ti.func
-    def _add_body(self, k, slot, acc: ti.template()):
+    def _add_body(self, k, slot, d, acc: ti.template()):
         """A body's sample: its share of the density and gradient sums, listed with psi_b grad W."""
         s = self.body_grid.sorted_id[slot]
-        w, g = cubic_w_grad(self.grid.sorted_x[k] - self.body_grid.sorted_x[slot], self.support)
+        w, g = cubic_w_grad(d, self.support)
         psi = self.bodies.psi[s]
         acc.rho += psi * w
         acc.wg += psi * g
@@ -488,14 +483,20 @@ class FluidDynamics:
             state.fluid_pressure[j] = self.kacc[k] * self.rho[k] * self.rho[k]
 
     @ti.kernel
-    def _boundary_volumes(self):
-        for b in range(self.boundary_count):
+    def _volumes(self, grid: ti.template(), psi: ti.template(), by_sample: ti.template()):
+        """psi_b = share rho0 / sum_b' W_bb' over the samples of `grid` (Akinci et al. 2012, eq. 4-5,
+        scaled as the walls' comment in __init__ says), into psi by slot (the walls, read by slot) or by
+        sample (the bodies, whose grid is rebuilt every substep)."""
+        for b in range(grid.capacity):
             acc = ti.cast(0.0, float)
-            self.boundary_psi[b] = 0.0
-            self._near(self.boundary, b, self.boundary.sorted_x[b], self._add_w, acc)
-            self.boundary_psi[b] = self.layer_share * self.rest_density / (acc + cubic_w(0.0, self.support))
+            self._near(grid, b, grid.sorted_x[b], self._add_w, acc)
+            value = self.layer_share * self.rest_density / (acc + cubic_w(0.0, self.support))
+            if ti.static(by_sample):
+                psi[grid.sorted_id[b]] = value
+            else:
+                psi[b] = value
 
     @ti.func
-    def _add_w(self, b, bb, acc: ti.template()):
+    def _add_w(self, b, bb, d, acc: ti.template()):
         if bb != b:
-            acc += cubic_w((self.boundary.sorted_x[b] - self.boundary.sorted_x[bb]).norm(), self.support)
+            acc += cubic_w(d.norm(), self.support)

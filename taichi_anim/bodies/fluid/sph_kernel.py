@@ -8,7 +8,8 @@ tutorial 2019, eq. 4): with q = r / H and sigma = 8 / (pi H^3),
            0                           beyond.
 
 It integrates to one over its support. The functions take the support H [m] and return W [1/m^3] and its
-gradient with respect to the first point [1/m^4]."""
+gradient with respect to the first point [1/m^4]: grad W = dW/dq (x_i - x_j) / (r H), with
+dW/dq = 6 sigma q (3 q - 2) inside q <= 1/2 and -6 sigma (1 - q)^2 beyond."""
 
 import math
 
@@ -31,25 +32,9 @@ def cubic_w(r, support):
 
 
 @ti.func
-def cubic_grad(d, support):
-    """grad_i W(|x_i - x_j|) [1/m^4] for d = x_i - x_j [m]; zero at d = 0 and beyond the support."""
-    r = d.norm()
-    q = r / support
-    g = ti.Vector.zero(float, 3)
-    if r > 1.0e-9 * support and q <= 1.0:
-        scale = 48.0 / (math.pi * support * support * support)
-        dq = d / (r * support)
-        if q <= 0.5:
-            g = scale * q * (3.0 * q - 2.0) * dq
-        else:
-            f = 1.0 - q
-            g = -scale * f * f * dq
-    return g
-
-
-@ti.func
 def cubic_w_grad(d, support):
-    """(W(|d|), grad W) of cubic_w and cubic_grad from one square root, for d = x_i - x_j [m]."""
+    """(W(|d|) [1/m^3], grad_i W [1/m^4]) for d = x_i - x_j [m], from one square root; the gradient is
+    zero at d = 0 and beyond the support."""
     r = d.norm()
     q = r / support
     sigma = 8.0 / (math.pi * support * support * support)
