@@ -367,3 +367,43 @@ def merge_meshes(meshes) -> tuple[np.ndarray, np.ndarray]:
         triangles.append(np.asarray(t, dtype=np.int64) + start)
         start += len(v)
     return np.concatenate(vertices), np.concatenate(triangles)
+
+
+def revolve_mesh(profile, segments: int = 32) -> tuple[np.ndarray, np.ndarray]:
+    """A closed solid of revolution about the y axis (a lathe; Blender's Screw modifier): `profile` is a
+    polyline of (r, y) [m] points, r >= 0, from the axis back to the axis, outlining the solid's half
+    section counter-clockwise in the (r, y) plane (e.g. a glass: (0, 0), (R, 0), (R, H), (R - t, H),
+    (R - t, b), (0, b)); `segments` around. Points on the axis become single vertices. Returns
+    (vertices, triangles) with outward normals."""
+    p = np.asarray(profile, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 2 or len(p) < 3 or not np.all(np.isfinite(p)):
+        raise ParameterError(f"profile must be at least 3 finite (r, y) points, got shape {p.shape}")
+    if np.any(p[:, 0] < 0) or p[0, 0] != 0 or p[-1, 0] != 0 or np.any(p[1:-1, 0] == 0):
+        raise ParameterError("profile must start and end on the axis (r = 0) and leave it in between (r > 0)")
+    segments = validate.count("segments", segments, 3)
+    ring = p[1:-1]  # off-axis points, one ring of `segments` vertices each
+    a = 2.0 * np.pi * np.arange(segments) / segments
+    rings = np.stack(
+        [
+            np.outer(ring[:, 0], np.cos(a)),
+            np.repeat(ring[:, 1:2], segments, 1),
+            -np.outer(ring[:, 0], np.sin(a)),
+        ],
+        axis=-1,
+    ).reshape(-1, 3)
+    first, last = len(rings), len(rings) + 1  # the two axis points
+    vertices = np.concatenate([rings, [[0.0, p[0, 1], 0.0], [0.0, p[-1, 1], 0.0]]])
+    k = np.arange(segments)
+    nxt = (k + 1) % segments
+    tris = [np.stack([np.full(segments, first), nxt, k], 1)]  # the fan from the first axis point
+    for i in range(len(ring) - 1):  # a band of quads between rings i and i + 1
+        a0, a1, b0, b1 = (
+            i * segments + k,
+            i * segments + nxt,
+            (i + 1) * segments + k,
+            (i + 1) * segments + nxt,
+        )
+        tris += [np.stack([a0, a1, b1], 1), np.stack([a0, b1, b0], 1)]
+    base = (len(ring) - 1) * segments
+    tris.append(np.stack([np.full(segments, last), base + k, base + nxt], 1))  # the fan to the last one
+    return vertices, np.concatenate(tris).astype(np.int64)

@@ -9,17 +9,24 @@ kernel scans those bits, 32 slots per word, from a rotating cursor and takes the
 backends the same slots come from parallel passes, slot_scan.py), then a parallel kernel draws each
 new particle's position, velocity and lifetime from counter-based hashes (same seed, same particles,
 whatever the thread count).
+
+A liquid's nozzle (`lattice` > 0, Builder.add_fluid_emitter) places no random points: it emits whole
+layers of a square lattice of that spacing on its disc, one each time the last has moved a spacing
+along `direction`, so that the jet leaves at the liquid's rest density (random points a spacing apart
+on average overlap, and the pressure solve would blow them apart). SPlisHSPlasH's emitters and
+Blender's inflow objects emit the same way.
 """
 
 import math
 from dataclasses import asdict, dataclass
 from enum import Enum
 
+import numpy as np
 import taichi as ti
 
 from .. import capacity, validate
 from ..rng import uniform
-from ..runtime import backend_name, data_oriented, serial_loops
+from ..runtime import backend_name, data_oriented, np_float, serial_loops
 from .slot_scan import ParallelSlotScan, bit_index
 
 # Which free-slot scan emitters use: None picks by backend and pool (parallel passes, slot_scan.py, on
@@ -60,6 +67,9 @@ class EmitterSettings:
     color_start: tuple[float, float, float]
     color_end: tuple[float, float, float]
     particle_radius: float = 0.0  # [m]; > 0 makes hard spheres
+    lattice: float = 0.0  # [m]; > 0: whole layers of a square lattice of this spacing (a liquid's nozzle)
+    start_time: float = 0.0  # [s] the first step that emits (lattice emitters)
+    stop_time: float | None = None  # [s] no step starting at or after it emits (None: never stops)
 
 
 def _basis(direction):
@@ -75,6 +85,15 @@ def _basis(direction):
     u = tuple(c / n for c in u)
     w = (d[1] * u[2] - d[2] * u[1], d[2] * u[0] - d[0] * u[2], d[0] * u[1] - d[1] * u[0])
     return u, w
+
+
+def disc_lattice(radius: float, spacing: float) -> np.ndarray:
+    """(P,2) [m] the points of a square lattice of `spacing` through the centre within `radius` of it
+    (the centre alone for a radius under a spacing)."""
+    m = int(math.floor(radius / spacing + 1e-9))
+    a = np.arange(-m, m + 1) * spacing
+    uv = np.stack(np.meshgrid(a, a, indexing="ij"), -1).reshape(-1, 2)
+    return uv[(uv * uv).sum(axis=1) <= radius * radius * (1.0 + 1e-9) + 1e-30]
 
 
 @data_oriented
@@ -102,11 +121,20 @@ class Emitter:
         on_gpu = backend_name() != "cpu" and slots >= PARALLEL_SCAN_FROM
         self.parallel_scan = on_gpu if PARALLEL_SCAN is None else bool(PARALLEL_SCAN)
         self._slot_scan = ParallelSlotScan(self.capacity) if self.parallel_scan else None
+        self.layer_points = 0
+        if settings.lattice > 0.0:
+            uv = disc_lattice(settings.size[0], settings.lattice)
+            self.layer_points = len(uv)
+            self.layer_uv = ti.Vector.field(2, float, shape=len(uv))
+            self.layer_uv.from_numpy(uv.astype(np_float()))
+            self.layer_offset = ti.field(float, shape=())
 
     def settings(self) -> dict:
         d = asdict(self.s)
         d["shape"] = self.s.shape.value
         d["slots"] = [self.start, self.start + self.capacity]
+        if self.layer_points:
+            d["layer_points"] = self.layer_points
         return d
 
     def plan(self, state, dt: float) -> int:
@@ -116,6 +144,23 @@ class Emitter:
         state.emit_carry[self.index] = want - int(want)
         return min(int(want), self.capacity)
 
+    def plan_layers(self, state, t: float, dt: float) -> int:
+        """A nozzle's particles in a step of dt [s] from t: the whole layers its jet advances by at `speed`
+        (the distance left over carries to the next step, `State.emit_carry`, below a spacing), none
+        outside [start_time, stop_time), at most as many as its slots hold. Sets the kernel's offset
+        of the newest layer from the disc."""
+        s, k = self.s, self.index
+        eps = 1e-6 * dt  # a time summed from steps (15 of 1/60 s) falls short of 0.25 s by its last bits
+        if t + dt <= s.start_time + eps or (s.stop_time is not None and t >= s.stop_time - eps):
+            return 0
+        reach = s.speed * dt + state.emit_carry[k]
+        # A layer per spacing travelled; the 1e-9 keeps sums of step lengths that should make whole
+        # spacings (12 steps of 1/240 s at 1 m/s and 1 cm) from falling short by the last bit.
+        layers = min(int(reach / s.lattice + 1e-9), self.capacity // self.layer_points)
+        state.emit_carry[k] = min(max(reach - layers * s.lattice, 0.0), s.lattice * (1.0 - 1e-9))
+        self.layer_offset[None] = state.emit_carry[k]
+        return layers * self.layer_points
+
     def slot_range(self) -> tuple[int, int, int, int, int]:
         """(start, word_lo, word_hi, mask_lo, mask_hi): the slot range as kernel arguments (not
         constants, so that an emitter of another capacity compiles nothing new)."""
@@ -124,7 +169,7 @@ class Emitter:
     def emit(self, state, t: float, dt: float, seed: int, step: int) -> None:
         """Spawn this step's particles at time t (they then live through the step). The fraction of a
         particle left over and the scan cursor are the state's (`State.emit_carry`, `emit_cursor`)."""
-        n = self.plan(state, dt)
+        n = self.plan_layers(state, t, dt) if self.layer_points else self.plan(state, dt)
         if n == 0:
             return
         self._emit(state, n, t, seed, step, *self.slot_range())
@@ -235,6 +280,19 @@ class Emitter:
         return pos, speed * dirn, self.life(r[6])
 
     @ti.func
+    def _layer_point(self, state: ti.template(), j):
+        """The j-th particle of this step's layers (plan_layers): layer j // P of the P lattice points,
+        the step's first layer furthest along the jet, the newest layer_offset from the disc."""
+        p = self.layer_points
+        layers = state.emit_found[self.index] // p
+        uv = self.layer_uv[j % p]
+        axis = ti.Vector(self.s.direction, dt=float)
+        along = self.layer_offset[None] + (layers - 1 - j // p) * self.s.lattice
+        pos = ti.Vector(self.s.center, dt=float) + along * axis
+        pos += uv[0] * ti.Vector(self.u, dt=float) + uv[1] * ti.Vector(self.w, dt=float)
+        return pos, self.s.speed * axis, ti.cast(self.s.lifetime, float)
+
+    @ti.func
     def life(self, u):
         """A new particle's lifetime [s] from its uniform draw u (the 7th, k = 6, of `_sample`)."""
         return self.s.lifetime * (1.0 + self.s.lifetime_jitter * (2.0 * u - 1.0))
@@ -248,7 +306,11 @@ class Emitter:
     @ti.func
     def _spawn_one(self, state: ti.template(), start, j, t, seed, step):
         i = state.emit_slot[start + j]
-        x, v, life = self._sample(seed, step, ti.cast(start + j, ti.u32))
+        x, v, life = ti.Vector.zero(float, 3), ti.Vector.zero(float, 3), ti.cast(0.0, float)
+        if ti.static(self.layer_points):
+            x, v, life = self._layer_point(state, j)
+        else:
+            x, v, life = self._sample(seed, step, ti.cast(start + j, ti.u32))
         state.particle_x[i] = x
         state.particle_v[i] = v
         state.particle_birth[i] = t

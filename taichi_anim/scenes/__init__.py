@@ -12,6 +12,7 @@ from . import (
     layers,
     moving_mesh,
     pile,
+    pour,
     rigid_cloth,
     spheres,
     tablecloth,
@@ -32,6 +33,7 @@ SCENES = {
     "pile": pile,
     "rigid_cloth": rigid_cloth,
     "dam_break": dam_break,
+    "pour": pour,
 }
 DEFAULT_SCENE = "fountain"
 

@@ -1,6 +1,7 @@
 """The fluid kind's builder part: one incompressible liquid per scene (`add_fluid`: its particle
-spacing, rest density and pressure solver), blocks of it (`add_fluid_block`) and particle sets
-(`add_fluid_particles`). Liquid particles are particles (bodies/particles/) of radius 0: gravity, the
+spacing, rest density and pressure solver), blocks of it (`add_fluid_block`), particle sets
+(`add_fluid_particles`), closed meshes filled (`add_fluid_mesh`) and nozzles (`add_fluid_emitter`: the particle kind's emitters, emitting whole
+lattice layers). Liquid particles are particles (bodies/particles/) of radius 0: gravity, the
 integrator, the exporters and the renderer treat them as such, colliders and bodies only stop them
 crossing a surface; the liquid's solver (dfsph.py) makes them incompressible and keeps them half a
 spacing from every surface."""
@@ -13,6 +14,11 @@ import numpy as np
 
 from ... import validate
 from ...errors import ParameterError
+from ...geometry import load_mesh
+from ...shapes import _check_closed
+from ...spatial.mesh_query import TriangleMesh, check_mesh
+from ...particles.emitters import EmitterSettings, EmitterShape, disc_lattice
+from ..particles.state import ALIVE_FOREVER
 from .sph_kernel import lattice_sum
 
 METHODS = ("dfsph",)
@@ -25,6 +31,7 @@ class FluidBuilder:
     def _init_fluid(self) -> None:
         self._fluid: dict | None = None
         self._fluid_particles: list[range] = []
+        self._fluid_emitters: list[int] = []  # indices into the particle kind's emitters
 
     def add_fluid(
         self,
@@ -102,6 +109,32 @@ class FluidBuilder:
         self._fluid_particles.append(idx)
         return idx
 
+    def add_fluid_mesh(self, mesh, *, velocity=(0.0, 0.0, 0.0)) -> range:
+        """Fill a closed mesh with the liquid (add_fluid first): the points of add_fluid_block's lattice
+        over the mesh's bounding box (a box's mesh fills as the box does) whose generalized winding number (Jacobson
+        et al., "Robust Inside-Outside Segmentation using Generalized Winding Numbers", SIGGRAPH 2013)
+        is at least 1/2, moving at `velocity` [m/s]. Each particle stands for a spacing^3, so the
+        liquid's volume is the mesh's to within its surface's share of a lattice cell. `mesh`: an Open3D
+        TriangleMesh, a file, or (vertices, triangles), closed and consistently oriented. Returns the
+        particles' indices."""
+        if self._fluid is None:
+            raise ParameterError("add_fluid_mesh needs the liquid: call add_fluid(spacing=...) first")
+        v, f = load_mesh(mesh, name="add_fluid_mesh", check=check_mesh)
+        _check_closed(f)
+        lo, hi = v.min(axis=0), v.max(axis=0)
+        d = self._fluid["spacing"]
+        counts = np.maximum(np.floor((hi - lo) / d + 1e-9).astype(np.int64), 1)  # add_fluid_block's lattice
+        # The lattice of the bounding box is at most twice the liquid: refused before it is made.
+        validate.capacity("add_fluid_mesh", self.particle_count + int(np.prod(counts)), bytes_each=0,
+                          unit="lattice points in the mesh's bounding box")  # fmt: skip
+        start = lo + 0.5 * ((hi - lo) - (counts - 1) * d)
+        axes = [start[a] + d * np.arange(counts[a]) for a in range(3)]
+        x = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+        x = x[TriangleMesh(v, f).inside(x)]
+        if not len(x):
+            raise ParameterError(f"add_fluid_mesh: the mesh holds no lattice point of spacing {d}")
+        return self.add_fluid_particles(x, np.broadcast_to(validate.vec3("velocity", velocity), x.shape))
+
     def add_fluid_particles(self, x, v=None) -> range:
         """Add liquid particles at x (N,3) [m] with velocities v (N,3) [m/s] (default 0), e.g. another
         tool's particle set; they should lie about a spacing apart, as add_fluid_block's lattice does
@@ -112,6 +145,51 @@ class FluidBuilder:
         self._fluid_particles.append(idx)
         return idx
 
+    def add_fluid_emitter(
+        self,
+        *,
+        center,
+        radius: float,
+        speed: float,
+        direction=(0.0, -1.0, 0.0),
+        start_time: float = 0.0,
+        stop_time: float | None = None,
+        capacity: int | None = None,
+    ) -> int:
+        """A nozzle (add_fluid first): a disc of `radius` [m] at `center` facing `direction` emits the
+        liquid at `speed` [m/s], one layer of the rest lattice (the disc's points a spacing apart) each
+        time the last has moved a spacing, from `start_time` until `stop_time` [s] (None: for as long as
+        its slots last). Its `capacity` of particle slots defaults to what it emits until stop_time; it
+        then stops. The flow is speed x (points per layer x spacing^2) [m^3/s]. Emitted particles are
+        liquid like a block's (they do not die). Returns the emitter index (particles' emitters)."""
+        if self._fluid is None:
+            raise ParameterError("add_fluid_emitter needs the liquid: call add_fluid(spacing=...) first")
+        d = self._fluid["spacing"]
+        radius = validate.non_negative("radius", radius)
+        speed = validate.positive("speed", speed)
+        start_time = validate.non_negative("start_time", start_time)
+        points = len(disc_lattice(radius, d))
+        if stop_time is not None:
+            stop_time = validate.positive("stop_time", stop_time)
+            if stop_time <= start_time:
+                raise ParameterError(f"stop_time ({stop_time}) must exceed start_time ({start_time})")
+        if capacity is None:
+            if stop_time is None:
+                raise ParameterError("add_fluid_emitter needs stop_time or capacity (the particle slots)")
+            capacity = points * (math.ceil(speed * (stop_time - start_time) / d) + 1)
+        capacity = validate.count("capacity", capacity, points)
+        validate.capacity("capacity", self.particle_count + capacity, bytes_each=0, unit="particles")
+        settings = EmitterSettings(
+            shape=EmitterShape.DISC, center=validate.vec3("center", center), size=(radius, 0.0, 0.0),
+            direction=validate.unit3("direction", direction), rate=points * speed / d, speed=speed,
+            speed_jitter=0.0, spread=0.0, lifetime=ALIVE_FOREVER, lifetime_jitter=0.0,
+            mass=self.fluid_particle_mass(), capacity=capacity, color_start=(0.3, 0.5, 0.9),
+            color_end=(0.3, 0.5, 0.9), lattice=d, start_time=start_time, stop_time=stop_time,
+        )  # fmt: skip
+        self._emitters.append(settings)
+        self._fluid_emitters.append(len(self._emitters) - 1)
+        return len(self._emitters) - 1
+
     def fluid_particle_mass(self) -> float:
         """[kg] the mass that gives an interior particle of the rest lattice exactly the rest density."""
         if self._fluid is None:
@@ -121,10 +199,17 @@ class FluidBuilder:
 
     def fluid_arrays(self) -> dict:
         """The fluid kind's arrays for finalize (init_model's keyword arguments)."""
-        if self._fluid is None or not self._fluid_particles:
+        if self._fluid is None or not (self._fluid_particles or self._fluid_emitters):
             return dict(particles=np.zeros(0, np.int64), options=None)
-        idx = np.concatenate([np.arange(r.start, r.stop) for r in self._fluid_particles])
-        options = dict(self._fluid, domain=self._fluid_domain(idx), mass=self.fluid_particle_mass())
+        added = [np.arange(r.start, r.stop) for r in self._fluid_particles]
+        slots, start = [], self.particle_count  # emitters' slots follow the added particles (particle kind)
+        for k, es in enumerate(self._emitters):
+            if k in self._fluid_emitters:
+                slots.append(np.arange(start, start + es.capacity))
+            start += es.capacity
+        idx = np.concatenate([np.zeros(0, np.int64), *added, *slots])
+        domain = self._fluid_domain(np.concatenate([np.zeros(0, np.int64), *added]))
+        options = dict(self._fluid, domain=domain, mass=self.fluid_particle_mass())
         return dict(particles=idx, options=options)
 
     def fluid_settings(self) -> dict:
@@ -132,18 +217,21 @@ class FluidBuilder:
         if self._fluid is None:
             return {}
         out = {k: v for k, v in self._fluid.items() if k != "domain"}
-        return {"fluid": {**out, "particles": sum(len(r) for r in self._fluid_particles)}}
+        slots = sum(self._emitters[k].capacity for k in self._fluid_emitters)
+        added = sum(len(r) for r in self._fluid_particles)
+        return {"fluid": {**out, "particles": added, "emitter_slots": slots}}
 
     def _fluid_domain(self, idx) -> tuple:
-        """(lo, hi) [m] the liquid can reach: add_fluid's domain, else the container boxes, else the
-        blocks' box grown by its extent on every side."""
+        """(lo, hi) [m] the liquid can reach: add_fluid's domain, else the container boxes, else the box
+        of the blocks' particles `idx` and the nozzles' centres grown by its extent on every side."""
         if self._fluid["domain"] is not None:
             return self._fluid["domain"]
         if self._containers:
             lo = np.min([c[0] for c in self._containers], axis=0)
             hi = np.max([c[1] for c in self._containers], axis=0)
             return lo, hi
-        x = np.concatenate(self._x)[idx]
+        x = np.concatenate([np.zeros((0, 3)), *self._x])[idx]
+        x = np.concatenate([x, np.reshape([self._emitters[k].center for k in self._fluid_emitters], (-1, 3))])
         lo, hi = x.min(axis=0), x.max(axis=0)
         pad = np.maximum(hi - lo, math.sqrt(3.0) * self._fluid["spacing"])
         return lo - pad, hi + pad

@@ -130,6 +130,10 @@ class FluidDynamics:
         self.err_max = f("fluid_err_max", shape=())
         self.overflow = f("fluid_overflow", ti.i32, shape=())
         self.speed = f("fluid_speed", shape=())
+        # Nozzles (add_fluid_emitter) give liquid particles birth times: the solves run over the live ones.
+        self.emitted = model.emitter_count > 0
+        if self.emitted:
+            self.cdeath = f("fluid_cdeath")
         vec = ti.types.vector(3, float)  # made after ti.init: `float` is the chosen precision
         self._sums = ti.types.struct(n=ti.i32, bn=ti.i32, mb=ti.i32, rho=float, g=vec, sq=float, wg=vec)
         self.overflow[None] = 0
@@ -154,7 +158,10 @@ class FluidDynamics:
     def before_substep(self, model, state, h: float) -> None:
         """Neighbourhoods, densities and factors at the substep's start; the divergence solve."""
         self._gather_positions(state, model)
-        self.grid.build(self.cx, model.fluid_count)
+        if self.emitted:  # the nozzles' unborn slots stay out of the grid, the solves run over its slots
+            self.grid.build(self.cx, model.fluid_count, death=self.cdeath, t=float(state.time))
+        else:
+            self.grid.build(self.cx, model.fluid_count)
         if self.coupled:
             self.bodies.place(model, state)
             self.body_grid.build(self.bodies.x, self.bodies.count)
@@ -218,7 +225,9 @@ class FluidDynamics:
         """Iterate until the mean error is below the tolerance (at least min_iterations; the divergence
         solve at most one of them, as SPlisHSPlasH's): (iterations, mean error, largest error) of the
         final velocities."""
-        n = self.model.fluid_count
+        n = int(self.grid.size[None]) if self.emitted else self.model.fluid_count
+        if n == 0:  # nothing emitted yet
+            return 0, 0.0, 0.0
         if self.coupled:
             self.bodies.move(self.model, state)  # the bodies' velocities now (the samples' speeds)
         tol = self.divergence_tolerance if divergence else self.tolerance
@@ -252,7 +261,7 @@ class FluidDynamics:
     @ti.func
     def _predict(self, h, divergence: ti.template()):
         """Each slot's stiffness kappa from its predicted error, and the errors' fixed-point sum and max."""
-        for k in range(self.model.fluid_count):
+        for k in range(self._live()):
             d = self._flux(k)
             s, e = ti.cast(0.0, float), ti.cast(0.0, float)
             if ti.static(divergence):
@@ -270,7 +279,7 @@ class FluidDynamics:
     @ti.func
     def _correct(self, h):
         """v_k -= h [sum_j m (kappa_k + kappa_j) grad W + sum_b psi_b kappa_k grad W]; kappa summed."""
-        for k in range(self.model.fluid_count):
+        for k in range(self._live()):
             ki = self.kappa[k]
             dv = ki * self.wall_grad[k]
             for m in range(self.nn[k]):
@@ -278,16 +287,29 @@ class FluidDynamics:
             self.sv[k] -= h * dv
             self.kacc[k] += ki
 
+    @ti.func
+    def _live(self):
+        """The slots the solves run over: the live particles (the grid's count) with nozzles, else all
+        (a compile-time constant)."""
+        n = self.model.fluid_count
+        if ti.static(self.emitted):
+            n = self.grid.size[None]
+        return n
+
     @ti.kernel
     def _start(self, state: ti.template(), model: ti.template(), h: float, divergence: ti.template()):
         """Warm start from a share of the last step's stiffness, then the first prediction."""
-        for k in range(model.fluid_count):
+        for k in range(self._live()):
             j = self.grid.sorted_id[k]
             self.kacc[k] = 0.0
             if ti.static(divergence):
                 self.kappa[k] = WARM_DIVERGENCE * state.fluid_kappa_v[j] / h
             else:
-                self.kappa[k] = WARM_DENSITY * state.fluid_kappa[j] / (h * h)
+                # Only where the particle is headed into compression (as SPlisHSPlasH): a particle
+                # stopped at a wall by last step's push would be thrown back by half of it again.
+                self.kappa[k] = 0.0
+                if self.rho[k] + h * self._flux(k) > self.rest_density:
+                    self.kappa[k] = WARM_DENSITY * state.fluid_kappa[j] / (h * h)
         if ti.static(not divergence or WARM_DIVERGENCE > 0.0):
             self._correct(h)
         self.err_sum[None] = 0
@@ -306,13 +328,16 @@ class FluidDynamics:
     @ti.kernel
     def _max_speed(self, state: ti.template(), model: ti.template()):
         self.speed[None] = 0.0
-        for j in range(model.fluid_count):
+        for j in range(model.fluid_count):  # unborn nozzle slots rest: their speed is 0
             ti.atomic_max(self.speed[None], state.particle_v[model.fluid_particle[j]].norm())
 
     @ti.kernel
     def _gather_positions(self, state: ti.template(), model: ti.template()):
         for j in range(model.fluid_count):
-            self.cx[j] = state.particle_x[model.fluid_particle[j]]
+            p = model.fluid_particle[j]
+            self.cx[j] = state.particle_x[p]
+            if ti.static(self.emitted):
+                self.cdeath[j] = state.particle_death[p]
 
     @ti.func
     def _near(self, grid: ti.template(), k, p, visit: ti.template(), acc: ti.template()):
@@ -383,7 +408,7 @@ class FluidDynamics:
             self.bodies.impulse[b] = ti.Vector.zero(float, 3)
             self.bodies.moment[b] = ti.Vector.zero(float, 3)
         ti.loop_config(serialize=True)
-        for k in range(model.fluid_count):
+        for k in range(self._live()):
             for m in range(self.body_n[k]):
                 s = self.body_nbr[k, m]
                 b = self.bodies.owner[s]
@@ -401,7 +426,7 @@ class FluidDynamics:
     @ti.kernel
     def _neighborhoods(self, state: ti.template(), model: ti.template()):
         """Each slot's neighbour list, density, factor alpha and velocity, in one pass over the cells."""
-        for k in range(model.fluid_count):
+        for k in range(self._live()):
             xi = self.grid.sorted_x[k]
             zero = ti.Vector.zero(float, 3)
             rho = self.mass * cubic_w(0.0, self.support)
@@ -423,7 +448,7 @@ class FluidDynamics:
 
     @ti.kernel
     def _write_velocities(self, state: ti.template(), model: ti.template(), h: float):
-        for k in range(model.fluid_count):
+        for k in range(self._live()):
             j = self.grid.sorted_id[k]
             state.particle_v[model.fluid_particle[j]] = self.sv[k]
             state.fluid_kappa_v[j] = self.kacc[k] * h
@@ -432,9 +457,9 @@ class FluidDynamics:
     def _gather_velocities(self, state: ti.template(), model: ti.template(), c: float):
         """v* from the method, smoothed by XSPH with the pair's mean density (Monaghan 1989, eq. 2.9):
         v_i += c sum_j (2 m / (rho_i + rho_j)) (v_j - v_i) W_ij, equal and opposite in every pair."""
-        for k in range(model.fluid_count):
+        for k in range(self._live()):
             self.sv2[k] = state.particle_v[model.fluid_particle[self.grid.sorted_id[k]]]
-        for k in range(model.fluid_count):
+        for k in range(self._live()):
             vi, rho = self.sv2[k], self.rho[k]
             dv = ti.Vector.zero(float, 3)
             for m in range(self.nn[k]):
@@ -462,7 +487,7 @@ class FluidDynamics:
     def _finish(self, state: ti.template(), model: ti.template(), h: float, t: float):
         """x = x(start) + h v; colliders' and bodies' surfaces as a last guard (half a spacing away, where
         the liquid's volume ends); write back; record p and rho."""
-        for k in range(model.fluid_count):
+        for k in range(self._live()):
             j = self.grid.sorted_id[k]
             p = model.fluid_particle[j]
             v = self.sv[k]
