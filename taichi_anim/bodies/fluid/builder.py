@@ -1,10 +1,10 @@
 """The fluid kind's builder part: one incompressible liquid per scene (`add_fluid`: its particle
-spacing, rest density and pressure solver), blocks of it (`add_fluid_block`), particle sets
-(`add_fluid_particles`), closed meshes filled (`add_fluid_mesh`) and nozzles (`add_fluid_emitter`: the particle kind's emitters, emitting whole
-lattice layers). Liquid particles are particles (bodies/particles/) of radius 0: gravity, the
-integrator, the exporters and the renderer treat them as such, colliders and bodies only stop them
-crossing a surface; the liquid's solver (dfsph.py) makes them incompressible and keeps them half a
-spacing from every surface."""
+spacing, rest density and pressure solver), and where it comes from: blocks (`add_fluid_block`),
+particle sets (`add_fluid_particles`), closed meshes filled (`add_fluid_mesh`) and nozzles
+(`add_fluid_emitter`: the particle kind's emitters, emitting whole lattice layers). Liquid particles
+are particles (bodies/particles/) of radius 0: gravity, the integrator, the exporters and the renderer
+treat them as such, colliders and bodies only stop them crossing a surface; the liquid's solver
+(dfsph.py) makes them incompressible and keeps them half a spacing from every surface."""
 
 from __future__ import annotations
 
@@ -15,9 +15,9 @@ import numpy as np
 from ... import validate
 from ...errors import ParameterError
 from ...geometry import load_mesh
+from ...particles.emitters import EmitterSettings, EmitterShape, disc_lattice
 from ...shapes import _check_closed
 from ...spatial.mesh_query import TriangleMesh, check_mesh
-from ...particles.emitters import EmitterSettings, EmitterShape, disc_lattice
 from ..particles.state import ALIVE_FOREVER
 from .sph_kernel import lattice_sum
 
@@ -111,9 +111,9 @@ class FluidBuilder:
 
     def add_fluid_mesh(self, mesh, *, velocity=(0.0, 0.0, 0.0)) -> range:
         """Fill a closed mesh with the liquid (add_fluid first): the points of add_fluid_block's lattice
-        over the mesh's bounding box (a box's mesh fills as the box does) whose generalized winding number (Jacobson
-        et al., "Robust Inside-Outside Segmentation using Generalized Winding Numbers", SIGGRAPH 2013)
-        is at least 1/2, moving at `velocity` [m/s]. Each particle stands for a spacing^3, so the
+        over the mesh's bounding box (a box's mesh fills as the box does) whose generalized winding
+        number (Jacobson et al., "Robust Inside-Outside Segmentation using Generalized Winding
+        Numbers", SIGGRAPH 2013) is at least 1/2, moving at `velocity` [m/s]. Each particle stands for a spacing^3, so the
         liquid's volume is the mesh's to within its surface's share of a lattice cell. `mesh`: an Open3D
         TriangleMesh, a file, or (vertices, triangles), closed and consistently oriented. Returns the
         particles' indices."""
