@@ -113,10 +113,10 @@ class FluidBuilder:
         """Fill a closed mesh with the liquid (add_fluid first): the points of add_fluid_block's lattice
         over the mesh's bounding box (a box's mesh fills as the box does) whose generalized winding
         number (Jacobson et al., "Robust Inside-Outside Segmentation using Generalized Winding
-        Numbers", SIGGRAPH 2013) is at least 1/2, moving at `velocity` [m/s]. Each particle stands for a spacing^3, so the
-        liquid's volume is the mesh's to within its surface's share of a lattice cell. `mesh`: an Open3D
-        TriangleMesh, a file, or (vertices, triangles), closed and consistently oriented. Returns the
-        particles' indices."""
+        Numbers", SIGGRAPH 2013) is at least 1/2, moving at `velocity` [m/s]. Each particle stands for
+        a spacing^3, so the liquid's volume is the mesh's to within its surface's share of a lattice
+        cell. `mesh`: an Open3D TriangleMesh, a file, or (vertices, triangles), closed and consistently
+        oriented. Returns the particles' indices."""
         if self._fluid is None:
             raise ParameterError("add_fluid_mesh needs the liquid: call add_fluid(spacing=...) first")
         v, f = load_mesh(mesh, name="add_fluid_mesh", check=check_mesh)
