@@ -37,6 +37,8 @@ FRAMES = {
     "dominoes": 100,
     "pile": 120,
     "rigid_cloth": 42,
+    "dam_break": 30,
+    "pour": 60,
 }
 
 
