@@ -1,6 +1,6 @@
-"""Surfacing a liquid: the engine's blobs (the particles' Gaussian field at its half level, evaluated in Taichi,
-Open3D's marching cubes, normals from the field's gradient) against splashsurf (pysplashsurf: an SPH colour field, marching cubes, in Rust)
-on the same particles, in the same run.
+"""Surfacing a liquid: the engine's blobs (the particles' Gaussian field at its half level, evaluated
+in Taichi, Open3D's marching cubes, normals from the field's gradient) against splashsurf (pysplashsurf:
+an SPH colour field, marching cubes, in Rust) on the same particles, in the same run.
 
 Clouds: the `dam_break` demo's column (per_width particles across a, 2a high) at rest and after 0.4 s
 of collapse (a splashing surge), f32. Both on a grid of half a spacing (the particle radius, r = d/2):
@@ -100,7 +100,8 @@ def main(argv=None) -> None:
         args,
         {"clouds": "dam_break demo columns (per_width 10/20/30 across a), at rest and after 0.4 s",
          "grid": "half a spacing (the particle radius) for both",
-         "ours": "Gaussian blobs sigma = d, iso = half the interior value, cutoff 3 sigma, Open3D marching cubes",
+         "ours": "Gaussian blobs sigma = d, iso = half the interior value, cutoff 3 sigma, "
+                 "Open3D marching cubes",
          "splashsurf": "smoothing length 2r (support 2d), cube r, iso 0.6, rest density 1000, multi-threaded",
          "threads": os.cpu_count(), "repeats": f"median of {repeats} after the first call"},
     )  # fmt: skip
