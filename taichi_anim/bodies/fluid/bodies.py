@@ -7,9 +7,14 @@ psi_b grad W_ib, is given back to the body as the opposite impulse at the sample
 takes -F_i<-b), so momentum is exchanged exactly and a body floats where the pressure's push balances
 its weight (Archimedes).
 
+Cloth couples the same way, as a sheet: samples about a spacing apart on every cloth triangle (at
+fixed barycentric coordinates, so they follow the cloth as it deforms), moving at the interpolated
+vertex velocities; each impulse goes back to the triangle's three vertices by the same weights. A
+sheet has no inside: its samples lie on it and the liquid stays about a spacing from it on either side.
+
 The impulses are summed serially over the fluid particles (the same order at any thread count) and
-applied to the bodies' velocities after each solve; the bodies' solver, first in the Stepper's list,
-moves them with those velocities in the next substep."""
+applied to the bodies' and the cloth vertices' velocities after each solve; the bodies' solver, first
+in the Stepper's list, and the method move them with those velocities in the next substep."""
 
 import numpy as np
 import taichi as ti
@@ -35,50 +40,105 @@ def body_samples(model, spacing: float) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(local), np.concatenate(owner)
 
 
+def cloth_samples(model, spacing: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rest positions (S,3) [m], triangle corners (S,3) particle indices, barycentric weights (S,3)):
+    samples at most `spacing` apart on every cloth triangle (model.triangles), each point once."""
+    if model.triangle_count == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 3))
+    x0 = model._x0
+    rest, corners, weights = [], [], []
+    for tri in model.triangles:
+        a, b, c = x0[tri[0]], x0[tri[1]], x0[tri[2]]
+        nu = max(1, int(np.ceil(np.linalg.norm(b - a) / spacing)))
+        nv = max(1, int(np.ceil(np.linalg.norm(c - a) / spacing)))
+        i, j = np.meshgrid(np.arange(nu + 1), np.arange(nv + 1), indexing="ij")
+        u, v = (i / nu).ravel(), (j / nv).ravel()
+        keep = u + v <= 1.0 + 1e-9
+        w = np.stack([1.0 - u[keep] - v[keep], u[keep], v[keep]], 1)
+        rest.append(w @ np.stack([a, b, c]))
+        corners.append(np.broadcast_to(tri, w.shape))
+        weights.append(w)
+    rest, corners, weights = np.concatenate(rest), np.concatenate(corners), np.concatenate(weights)
+    key = np.round(rest / (1e-4 * spacing)).astype(np.int64)
+    first = np.sort(np.unique(key, axis=0, return_index=True)[1])  # a shared edge's points once
+    return rest[first], corners[first], weights[first]
+
+
 @data_oriented
 class BodySamples:
-    """The boundary samples of a model's rigid bodies: local positions, owners and volumes (static),
-    world positions and velocities (each substep), the impulses the liquid gives back."""
+    """The boundary samples that move: the rigid bodies' (local positions, owner >= 0) and the cloth's
+    (triangle corners and weights, owner -1), their volumes (static), world positions and velocities
+    (each substep), the impulses the liquid gives back."""
 
     def __init__(self, model, spacing: float, make):
-        local, owner = body_samples(model, spacing)
-        self.count = len(local)
-        self._local, self._owner = local, owner
-        self.local = make(self, "fluid_body_local", float, self.count, (3,))
-        self.owner = make(self, "fluid_body_owner", ti.i32, self.count)
-        self.psi = make(self, "fluid_body_psi", float, self.count)  # filled by the solver (_volumes)
-        self.x = make(self, "fluid_body_x", float, self.count, (3,))  # world, at the substep's start
-        self.v = make(self, "fluid_body_v", float, self.count, (3,))
-        self.local.from_numpy(local.astype(np_float()))
-        self.owner.from_numpy(owner.astype(np.int32))
-        b = model.rigid_count
+        local, owner = body_samples(model, spacing) if model.rigid_count else (np.zeros((0, 3)), np.zeros(0))
+        rest, corners, weights = cloth_samples(model, spacing)
+        self.rigid_count, self.cloth_count = len(local), len(rest)
+        self.count = n = self.rigid_count + self.cloth_count
+        self.has_rigid, self.has_cloth = model.rigid_count > 0, self.cloth_count > 0  # compile-time
+        # Each sample's own group, for its volume: a body, or the cloth.
+        self._local = np.concatenate([local, rest])
+        self._group = np.concatenate([owner, np.full(len(rest), model.rigid_count)]).astype(np.int64)
+        self.local = make(self, "fluid_body_local", float, n, (3,))
+        self.owner = make(self, "fluid_body_owner", ti.i32, n)
+        self.corners = make(self, "fluid_body_corners", ti.i32, n, (3,))
+        self.weights = make(self, "fluid_body_weights", float, n, (3,))
+        self.psi = make(self, "fluid_body_psi", float, n)  # filled by the solver (_volumes)
+        self.x = make(self, "fluid_body_x", float, n, (3,))  # world, at the substep's start
+        self.v = make(self, "fluid_body_v", float, n, (3,))
+        self.local.from_numpy(self._local.astype(np_float()))
+        self.owner.from_numpy(np.concatenate([owner, np.full(len(rest), -1)]).astype(np.int32))
+        self.corners.from_numpy(np.concatenate([np.zeros((len(local), 3)), corners]).astype(np.int32))
+        self.weights.from_numpy(np.concatenate([np.zeros((len(local), 3)), weights]).astype(np_float()))
+        b = max(model.rigid_count, 1)
         self.impulse = make(self, "fluid_body_impulse", float, b, (3,))
         self.moment = make(self, "fluid_body_moment", float, b, (3,))
 
     def apart(self, reach: float):
-        """(positions field (S,3), lo, hi): every body's samples in its own frame, the bodies set side by
-        side along x more than `reach` [m] apart, so that a neighbour search finds each body's own
-        samples only (their volumes, psi_b)."""
+        """(positions field (S,3), lo, hi): every body's samples in its own frame and the cloth's at rest,
+        the groups set side by side along x more than `reach` [m] apart, so that a neighbour search
+        finds each group's own samples only (their volumes, psi_b)."""
         extent = float(np.abs(self._local).max()) if self.count else 0.0
         step = 2.0 * extent + 2.0 * reach
         x = self._local.copy()
-        x[:, 0] += step * self._owner
+        x[:, 0] += step * self._group
         field = ti.Vector.field(3, float, self.count)
         field.from_numpy(x.astype(np_float()))
         return field, x.min(axis=0) - reach, x.max(axis=0) + reach
 
+    @ti.func
+    def _cloth_point(self, state: ti.template(), s):
+        """A cloth sample's position and velocity from its triangle's corners."""
+        x, v = ti.Vector.zero(float, 3), ti.Vector.zero(float, 3)
+        for c in ti.static(range(3)):
+            i = self.corners[s][c]
+            x += self.weights[s][c] * state.particle_x[i]
+            v += self.weights[s][c] * state.particle_v[i]
+        return x, v
+
     @ti.kernel
     def place(self, model: ti.template(), state: ti.template()):
-        """World positions and velocities of the samples from the bodies' poses now."""
+        """World positions and velocities of the samples from the bodies' poses and the cloth now."""
         for s in range(self.count):
             b = self.owner[s]
-            arm = quat_matrix(state.rigid_q[b]) @ self.local[s]
-            self.x[s] = state.rigid_x[b] + arm
-            self.v[s] = state.rigid_v[b] + state.rigid_w[b].cross(arm)
+            if b >= 0:
+                if ti.static(self.has_rigid):
+                    arm = quat_matrix(state.rigid_q[b]) @ self.local[s]
+                    self.x[s] = state.rigid_x[b] + arm
+                    self.v[s] = state.rigid_v[b] + state.rigid_w[b].cross(arm)
+            else:
+                if ti.static(self.has_cloth):
+                    self.x[s], self.v[s] = self._cloth_point(state, s)
 
     @ti.kernel
     def move(self, model: ti.template(), state: ti.template()):
-        """The samples' velocities from the bodies' velocities now (positions stay the substep's start)."""
+        """The samples' velocities from the bodies' and the cloth's velocities now (positions stay the
+        substep's start)."""
         for s in range(self.count):
             b = self.owner[s]
-            self.v[s] = state.rigid_v[b] + state.rigid_w[b].cross(self.x[s] - state.rigid_x[b])
+            if b >= 0:
+                if ti.static(self.has_rigid):
+                    self.v[s] = state.rigid_v[b] + state.rigid_w[b].cross(self.x[s] - state.rigid_x[b])
+            else:
+                if ti.static(self.has_cloth):
+                    _, self.v[s] = self._cloth_point(state, s)

@@ -101,9 +101,9 @@ class FluidDynamics:
             self.boundary.build(bx)
             self.boundary_psi = make(self, "fluid_boundary_psi", float, self.boundary_count)
             self._volumes(self.boundary, self.boundary_psi, False)
-        # Rigid bodies in the liquid: samples on their surfaces, moving with them, and a grid over them
-        # built every substep (bodies.py).
-        self.coupled = model.rigid_count > 0
+        # Rigid bodies and cloth in the liquid: samples on their surfaces, moving with them, and a grid
+        # over them built every substep (bodies.py).
+        self.coupled = model.rigid_count > 0 or model.triangle_count > 0
         if self.coupled:
             self.bodies = BodySamples(model, self.spacing, make)
             # Each body's samples apart from the others' (its own volumes only), in one grid.
@@ -403,25 +403,35 @@ class FluidDynamics:
     def _push_bodies(self, model: ti.template(), state: ti.template(), h: float):
         """Each pair's pressure correction of a particle, given back to the body at the sample:
         J = m_i h kappa_i psi_b grad W_ib (summed over the solve's iterations), in particle order."""
-        ti.loop_config(serialize=True)
-        for b in range(model.live_rigid()):
-            self.bodies.impulse[b] = ti.Vector.zero(float, 3)
-            self.bodies.moment[b] = ti.Vector.zero(float, 3)
+        rigid = ti.static(self.bodies.has_rigid)
+        if ti.static(rigid):
+            ti.loop_config(serialize=True)
+            for b in range(model.live_rigid()):
+                self.bodies.impulse[b] = ti.Vector.zero(float, 3)
+                self.bodies.moment[b] = ti.Vector.zero(float, 3)
         ti.loop_config(serialize=True)
         for k in range(self._live()):
             for m in range(self.body_n[k]):
                 s = self.body_nbr[k, m]
                 b = self.bodies.owner[s]
                 j = (self.mass * h * self.kacc[k]) * self.body_grad[k, m]
-                self.bodies.impulse[b] += j
-                self.bodies.moment[b] += (self.bodies.x[s] - state.rigid_x[b]).cross(j)
-        ti.loop_config(serialize=True)
-        for b in range(model.live_rigid()):
-            if model.rigid_inv_mass[b] > 0.0:
-                r = quat_matrix(state.rigid_q[b])
-                state.rigid_v[b] += self.bodies.impulse[b] * model.rigid_inv_mass[b]
-                inv_inertia = world_inverse_inertia(r, model.rigid_inv_moments[b])
-                state.rigid_w[b] += inv_inertia @ self.bodies.moment[b]
+                if b >= 0:
+                    if ti.static(rigid):
+                        self.bodies.impulse[b] += j
+                        self.bodies.moment[b] += (self.bodies.x[s] - state.rigid_x[b]).cross(j)
+                else:  # a cloth sample: to its triangle's corners by its weights
+                    if ti.static(self.bodies.has_cloth):
+                        for c in ti.static(range(3)):
+                            i = self.bodies.corners[s][c]
+                            state.particle_v[i] += (self.bodies.weights[s][c] * model.inv_mass(i)) * j
+        if ti.static(rigid):
+            ti.loop_config(serialize=True)
+            for b in range(model.live_rigid()):
+                if model.rigid_inv_mass[b] > 0.0:
+                    r = quat_matrix(state.rigid_q[b])
+                    state.rigid_v[b] += self.bodies.impulse[b] * model.rigid_inv_mass[b]
+                    inv_inertia = world_inverse_inertia(r, model.rigid_inv_moments[b])
+                    state.rigid_w[b] += inv_inertia @ self.bodies.moment[b]
 
     @ti.kernel
     def _neighborhoods(self, state: ti.template(), model: ti.template()):
@@ -499,7 +509,7 @@ class FluidDynamics:
                     vn = (v - vs).dot(n)
                     if vn < 0.0:
                         v -= vn * n
-            if ti.static(self.coupled):
+            if ti.static(self.coupled and model.rigid_count > 0):
                 x = self._outside_bodies(model, state, x)
             state.particle_x[p] = x
             state.particle_v[p] = v
