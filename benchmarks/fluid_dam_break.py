@@ -1,6 +1,7 @@
 """Liquid against SPlisHSPlasH: its DamBreakModel scene (6,859 particles, DFSPH, 0.05 % density
 tolerance) in SPlisHSPlasH (pysplishsplash, in a child process) and the same particle set in taichi_anim
-(the first step's positions and velocities SPlisHSPlasH reports), for the same simulated time.
+(the first step's positions and velocities SPlisHSPlasH reports), for the same simulated time, by both
+of its solvers (DFSPH and position-based fluids, to the same density tolerance).
 
 Reports per engine: median ms per step (wall, after the first steps), CPU-ms per step, particle-steps per
 second, pressure iterations per step (density and divergence solves), and the mean and largest
@@ -59,12 +60,13 @@ def peer_figures(rec: dict) -> dict:
     )  # fmt: skip
 
 
-def build(first: dict):
-    """Our scene: SPlisHSPlasH's tank (the unit box scaled 4 x 3 x 1.5 with its floor at 0) and particles."""
+def build(first: dict, method: str = "dfsph"):
+    """Our scene: SPlisHSPlasH's tank (the unit box scaled 4 x 3 x 1.5 with its floor at 0) and particles,
+    made incompressible by `method` ("dfsph" or "pbf")."""
     b = ta.Builder()
     b.add_force_gravity()
     b.add_collider_box((-2.0, 0.0, -0.75), (2.0, 3.0, 0.75), restitution=0.0)
-    b.add_fluid(spacing=2.0 * first["radius"], density=first["density0"], tolerance=5e-4,
+    b.add_fluid(spacing=2.0 * first["radius"], density=first["density0"], tolerance=5e-4, method=method,
                 divergence_tolerance=1e-3, viscosity=0.01, cfl=0.4, max_step=0.005)  # fmt: skip
     b.add_fluid_particles(np.array(first["x"]), np.array(first["v"]))
     model = b.finalize()
@@ -82,9 +84,9 @@ def frame(stepper, state) -> tuple[float, float]:
     return time.perf_counter() - w0, cpu_seconds() - c0
 
 
-def run_ours(first: dict, seconds: float) -> dict:
+def run_ours(first: dict, seconds: float, method: str = "dfsph") -> dict:
     init("f32")
-    model, state, stepper, fluid = build(first)
+    model, state, stepper, fluid = build(first, method)
     walls, cpus, samples, steps, density_it, divergence_it = [], [], [], 0, 0, 0
     while state.time < seconds - 1e-9:
         wall, cpu = frame(stepper, state)
@@ -129,10 +131,14 @@ def main() -> None:
     log("taichi_anim, the same particles")
     ours = run_ours(rec["first"], seconds)
     log(f"  {ours}")
+    log("taichi_anim, position-based fluids, the same particles")
+    pbf = run_ours(rec["first"], seconds, "pbf")
+    log(f"  {pbf}")
     comp = compile_figures(rec["first"])
     engines = (
         ("SPlisHSPlasH 2.19 (DFSPH, volume maps)", theirs),
         ("taichi_anim (DFSPH, boundary particles)", ours),
+        ("taichi_anim (PBF, boundary particles)", pbf),
     )
     rows = [
         [name, r["particles"], r["steps"], f"{r['wall'] * 1e3:.2f}", f"{r['cpu'] * 1e3:.2f}",
@@ -144,6 +150,7 @@ def main() -> None:
     per_step = theirs["wall"] / ours["wall"] * ours["particles"] / theirs["particles"]
     # Per simulated second: the engines choose different step sizes under the same CFL factor.
     per_second = (theirs["wall"] * theirs["steps"]) / (ours["wall"] * ours["steps"])
+    pbf_second = (theirs["wall"] * theirs["steps"]) / (pbf["wall"] * pbf["steps"])
     page = Page(
         "fluid_dam_break",
         "Liquid: SPlisHSPlasH's dam break in both engines",
@@ -161,10 +168,11 @@ def main() -> None:
          "divergence iterations", "mean compression", "max compression"],
         rows,
         f"Particle-steps per second, ours / SPlisHSPlasH: {per_step:.2f}x; simulated seconds per wall second "
-        f"(median step x steps): {per_second:.2f}x. Our compile: cold {comp['cold']['compile']:.2f} s, "
+        f"(median step x steps): {per_second:.2f}x (PBF: {pbf_second:.2f}x). "
+        f"Our compile: cold {comp['cold']['compile']:.2f} s, "
         f"warm {comp['warm']['compile']:.2f} s (first frame minus a steady one, fresh cache folder).",
     )  # fmt: skip
-    page.write({"splishsplash": theirs, "taichi_anim": ours, "compile": comp})
+    page.write({"splishsplash": theirs, "taichi_anim": ours, "taichi_anim_pbf": pbf, "compile": comp})
 
 
 if __name__ == "__main__":

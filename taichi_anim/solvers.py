@@ -40,7 +40,7 @@ contacts, dt)` in a sequence, each reading the state the previous one wrote).
 Adding a contact solver: a class with these methods in its own file, and one line in `SOLVERS` below
 (the model option it is built from); a user adds one at run time with `Stepper.add_solver(solver)`."""
 
-from .bodies.fluid import FluidDynamics
+from .bodies.fluid import fluid_solver
 from .bodies.rigid import RigidDynamics
 from .collision.self_contact import SelfContact
 from .collision.spheres import ContactSpheres
@@ -53,7 +53,7 @@ REQUIRED = ("name", "substeps", "before_substep", "after_substep", "check", "set
 # recorded, or None when the scene did not ask for it; the class built from them with (model, **options)).
 SOLVERS = (
     ("rigid_dynamics", RigidDynamics),
-    ("fluid", FluidDynamics),
+    ("fluid", fluid_solver),
     ("sphere_contacts", ContactSpheres),
     ("self_contact", SelfContact),
 )

@@ -18,14 +18,16 @@ MARTIN_MOYCE = np.array(
 )  # fmt: skip
 
 
-def surge_front(per_width: int, a: float = 0.25, t_end: float = 2.6) -> tuple[np.ndarray, dict]:
+def surge_front(
+    per_width: int, a: float = 0.25, t_end: float = 2.6, method="dfsph"
+) -> tuple[np.ndarray, dict]:
     """(T, x/a) every 5 ms of a quasi-2-D dam break (4 spacings deep between free-slip walls), and the
     solver's totals."""
     d = a / per_width
     b = ta.Builder()
     b.add_force_gravity()
     b.add_collider_box((0.0, 0.0, 0.0), (5.0 * a, 3.0 * a, 4.0 * d), restitution=0.0)
-    b.add_fluid(spacing=d)
+    b.add_fluid(spacing=d, method=method)
     b.add_fluid_block((0.0, 0.0, 0.0), (a, 2.0 * a, 4.0 * d))
     model = b.finalize()
     state = model.state()

@@ -1,12 +1,14 @@
-"""The fluid kind: an incompressible liquid of SPH particles (builder.py), made incompressible by the
-divergence-free SPH solver (dfsph.py) against boundary samples of the colliders (boundary.py). Its
-particles are particles of the particle kind, so everything that acts on or shows particles acts on or
-shows the liquid; this kind adds which particles are liquid, its constants, and the solver's carry."""
+"""The fluid kind: an incompressible liquid of SPH particles (builder.py), made incompressible by
+divergence-free SPH (dfsph.py) or position-based fluids (pbf.py) against boundary samples of the
+colliders (boundary.py). Its particles are particles of the particle kind, so everything that acts on
+or shows particles acts on or shows the liquid; this kind adds which particles are liquid, its
+constants, and the solver's carry."""
 
 from ..base import BodyKind
 from .builder import FluidBuilder
 from .dfsph import FluidDynamics
 from .model import FluidModel
+from .pbf import PositionBasedFluid
 from .state import FluidState
 
 
@@ -28,4 +30,11 @@ FLUID = BodyKind(
     output_items=lambda model, state: [],
 )
 
-__all__ = ["FLUID", "FluidDynamics"]
+
+def fluid_solver(model, *, method: str, **options):
+    """The liquid's solver for add_fluid's `method`: "dfsph" (dfsph.py) or "pbf" (pbf.py)."""
+    cls = PositionBasedFluid if method == "pbf" else FluidDynamics
+    return cls(model, method=method, **options)
+
+
+__all__ = ["FLUID", "FluidDynamics", "PositionBasedFluid", "fluid_solver"]

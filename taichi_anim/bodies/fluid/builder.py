@@ -21,7 +21,7 @@ from ...spatial.mesh_query import TriangleMesh, check_mesh
 from ..particles.state import ALIVE_FOREVER
 from .sph_kernel import lattice_sum
 
-METHODS = ("dfsph",)
+METHODS = ("dfsph", "pbf")
 SUPPORT_PER_SPACING = 2.0  # support radius H = 2 spacings (= 4 particle radii, as in SPlisHSPlasH)
 
 
@@ -51,7 +51,8 @@ class FluidBuilder:
     ) -> None:
         """The scene's liquid: particles `spacing` [m] apart at rest (support radius 2 spacings), rest
         `density` [kg/m^3], made incompressible by `method` "dfsph" (divergence-free SPH, Bender &
-        Koschier 2015): each step's pressure solve iterates until the mean predicted density error is
+        Koschier 2015) or "pbf" (position-based fluids, Macklin & Müller 2013: density constraints on
+        predicted positions, no divergence solve): each step's pressure solve iterates until the mean predicted density error is
         below `tolerance` (a fraction of the rest density: 5e-4 = 0.05 %, SPlisHSPlasH's dam break), the
         divergence solve until the mean density change over a step is below `divergence_tolerance`,
         with at least `min_iterations` (the divergence solve at most one) and at most `max_iterations`

@@ -166,14 +166,13 @@ class FluidDynamics:
             self.bodies.place(model, state)
             self.body_grid.build(self.bodies.x, self.bodies.count)
         self._neighborhoods(state, model)
-        iterations, mean, _ = self._solve(h, divergence=True, state=state)
+        iterations, mean = self._divergence_step(h, state)
         self.last = dict(divergence_iterations=iterations, divergence_error=mean)
-        self._write_velocities(state, model, h)
 
     def after_substep(self, model, state, h: float, step: int) -> None:
         """XSPH, the density solve, then positions from the corrected velocities."""
         self._gather_velocities(state, model, self.viscosity)
-        iterations, mean, worst = self._solve(h, divergence=False, state=state)
+        iterations, mean, worst = self._density_step(h, state)
         self._finish(state, model, h, float(state.time + h))
         self.last.update(density_iterations=iterations, mean_density_error=mean, max_density_error=worst)
         t = self.totals
@@ -220,6 +219,16 @@ class FluidDynamics:
         return dict(self.totals, neighbor_overflow=int(self.overflow[None]))
 
     # --- solves ---------------------------------------------------------------------------------
+
+    def _divergence_step(self, h: float, state) -> tuple[int, float]:
+        """The divergence solve on the velocities at the substep's start: (iterations, mean error)."""
+        iterations, mean, _ = self._solve(h, divergence=True, state=state)
+        self._write_velocities(state, self.model, h)
+        return iterations, mean
+
+    def _density_step(self, h: float, state) -> tuple[int, float, float]:
+        """The density solve on the velocities v* (self.sv): (iterations, mean, largest error)."""
+        return self._solve(h, divergence=False, state=state)
 
     def _solve(self, h: float, *, divergence: bool, state) -> tuple[int, float, float]:
         """Iterate until the mean error is below the tolerance (at least min_iterations; the divergence

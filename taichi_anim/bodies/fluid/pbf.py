@@ -1,0 +1,125 @@
+"""Position-based fluids (Macklin & Müller, "Position Based Fluids", SIGGRAPH 2013): the liquid's other
+solver (add_fluid(method="pbf")), on the same neighbourhoods, walls, bodies, viscosity and report as
+divergence-free SPH (dfsph.py), whose solver class this one extends.
+
+Each substep of h: the method's velocities v* (with gravity), XSPH, then predicted positions
+p_i = x_i + h v*_i, and until the mean density error is below the tolerance (at least min_iterations,
+at most max_iterations), a Jacobi pass of the density constraints C_i = rho_i / rho0 - 1 at p (eq. 1):
+
+    rho_i(p) = m W(0) + sum_j m W(p_i - p_j) + sum_b psi_b [W(x_i - x_b) + grad W_ib.(p_i - x_i - h v_b)]
+    lambda_i = -max(C_i, 0) / (|grad_i C_i|^2 + sum_j |grad_j C_i|^2)                         (eq. 9-11)
+    dp_i = (1 / rho0) [sum_j m (lambda_i + lambda_j) grad W(p_i - p_j) + lambda_i sum_b psi_b grad W_ib]
+                                                                                               (eq. 12)
+
+with the fluid pairs' kernels evaluated at p every iteration (the neighbour lists are the substep
+start's, as the CFL condition keeps particles within 0.4 spacings) and the boundary samples' terms
+linearised about the substep's start (Akinci's samples, as in dfsph.py, moving with their bodies).
+Then v = (p - x) / h and x = p, with the colliders' guard. Choices: the constraint only pushes apart
+(C clamped at 0, as the DFSPH solves) instead of Macklin's artificial pressure s_corr against the
+tensile instability, no relaxation epsilon (the denominator is 0 only for a particle alone, which
+then does not move), no vorticity confinement; the pressure reported is -sum lambda_i / h^2 rho_i^2 /
+rho0, the position correction's pressure equivalent. A pair's corrections are equal and opposite, and
+each boundary sample's goes back to its body as an impulse, so momentum is conserved and exchanged."""
+
+import taichi as ti
+
+from ...runtime import data_oriented
+from .dfsph import ERROR_SCALE, FluidDynamics
+from .sph_kernel import cubic_w, cubic_w_grad
+
+
+@data_oriented
+class PositionBasedFluid(FluidDynamics):
+    """The liquid's position-based solver (module docstring)."""
+
+    def __init__(self, model, **options):
+        super().__init__(model, **options)
+        n = model.fluid_count
+        self.px = model.new_field(self, "fluid_px", float, n, (3,))  # predicted positions, by slot
+        self.px2 = model.new_field(self, "fluid_px2", float, n, (3,))
+        self.lam = model.new_field(self, "fluid_lambda", float, n)
+
+    def _divergence_step(self, h: float, state) -> tuple[int, float]:
+        return 0, 0.0  # position-based fluids have no divergence solve
+
+    def _density_step(self, h: float, state) -> tuple[int, float, float]:
+        """Predict, iterate the constraints to the tolerance, and velocities from the corrections."""
+        n = int(self.grid.size[None]) if self.emitted else self.model.fluid_count
+        if n == 0:
+            return 0, 0.0, 0.0
+        if self.coupled:
+            self.bodies.move(self.model, state)
+        self._predict_positions(h)
+        self._constraints(h)
+        mean = int(self.err_sum[None]) / ERROR_SCALE / n
+        it = 0
+        while it < self.max_iterations and (mean > self.tolerance or it < self.min_iterations):
+            self._project(h)
+            self._constraints(h)
+            it += 1
+            mean = int(self.err_sum[None]) / ERROR_SCALE / n
+        self._velocities(h)
+        if self.coupled:
+            self._push_bodies(self.model, state, h)
+        return it, mean, float(self.err_max[None])
+
+    @ti.kernel
+    def _predict_positions(self, h: float):
+        for k in range(self._live()):
+            self.px[k] = self.grid.sorted_x[k] + h * self.sv[k]
+            self.kacc[k] = 0.0
+
+    @ti.kernel
+    def _constraints(self, h: float):
+        """lambda_k at the predicted positions, and the clamped errors' fixed-point sum and max."""
+        self.err_sum[None] = 0
+        self.err_max[None] = 0.0
+        w0 = cubic_w(0.0, self.support)
+        for k in range(self._live()):
+            p = self.px[k]
+            # The boundary's share of the density at the start, linearised in the particle's motion
+            # (and the moving samples' own).
+            fluid0 = w0
+            for m in range(self.nn[k]):
+                fluid0 += self.weight[k, m]
+            rho = self.rho[k] - self.mass * fluid0 + self.wall_grad[k].dot(p - self.grid.sorted_x[k])
+            if ti.static(self.coupled):
+                for m in range(self.body_n[k]):
+                    rho -= h * self.body_grad[k, m].dot(self.bodies.v[self.body_nbr[k, m]])
+            rho += self.mass * w0
+            g = self.wall_grad[k]
+            sq = ti.cast(0.0, float)
+            for m in range(self.nn[k]):
+                d = p - self.px[self.nbr[k, m]]
+                w, gr = cubic_w_grad(d, self.support)
+                rho += self.mass * w
+                gr *= self.mass
+                g += gr
+                sq += gr.dot(gr)
+            c = ti.max(rho / self.rest_density - 1.0, 0.0)
+            den = g.dot(g) + sq
+            self.lam[k] = -c * self.rest_density * self.rest_density / den if den > 0.0 else 0.0
+            ti.atomic_add(self.err_sum[None], ti.cast(c * ERROR_SCALE + 0.5, ti.i64))
+            ti.atomic_max(self.err_max[None], c)
+
+    @ti.kernel
+    def _project(self, h: float):
+        """p_k += dp_k (Jacobi: every correction from the same lambdas); kacc sums the corrections'
+        pressure equivalent for the bodies' impulses and the report."""
+        for k in range(self._live()):
+            p, lk = self.px[k], self.lam[k]
+            dp = lk * self.wall_grad[k]
+            for m in range(self.nn[k]):
+                kk = self.nbr[k, m]
+                _, gr = cubic_w_grad(p - self.px[kk], self.support)
+                dp += (lk + self.lam[kk]) * self.mass * gr
+            self.px2[k] = p + dp / self.rest_density
+            # dv = dp / h = -h kappa grad (dfsph.py's form): kappa = -lambda / (rho0 h^2)
+            self.kacc[k] -= lk / (self.rest_density * h * h)
+        for k in range(self._live()):
+            self.px[k] = self.px2[k]
+
+    @ti.kernel
+    def _velocities(self, h: float):
+        for k in range(self._live()):
+            self.sv[k] = (self.px[k] - self.grid.sorted_x[k]) / h
