@@ -9,11 +9,11 @@ import taichi_anim as ta
 RHO = 1000.0
 
 
-def plank_in_tank(density: float, *, d=0.02, width=0.4, depth=0.24, size=(0.16, 0.06, 0.16)):
+def plank_in_tank(density: float, *, d=0.02, width=0.4, depth=0.24, size=(0.16, 0.06, 0.16), method="dfsph"):
     b = ta.Builder()
     b.add_force_gravity()
     b.add_collider_box((0.0, 0.0, 0.0), (width, 0.6, width), restitution=0.0)
-    b.add_fluid(spacing=d)
+    b.add_fluid(spacing=d, method=method)
     b.add_fluid_block((0.0, 0.0, 0.0), (width, depth, width))
     half = np.asarray(size) / 2.0
     b.add_rigid_body(ta.shapes.Box(tuple(half)), density=density,

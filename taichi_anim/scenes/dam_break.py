@@ -33,16 +33,18 @@ def build(
     depth: float = 0.2,
     tolerance: float = 5e-4,
     resolution: int = 96,
+    method: str = "dfsph",
 ) -> BlobScene:
     """A column `width` [m] wide (a), 2a high and `depth` [m] deep, `per_width` particles across a,
     against the left wall of a tank 4.5 a long and 1.5 a high; density error `tolerance` (a fraction
-    of rest density); the surface's grid has `resolution` nodes along the tank's length."""
+    of rest density) and solver `method` ("dfsph" or "pbf"); the surface's grid has `resolution` nodes
+    along the tank's length."""
     d = width / per_width
     b = Builder()
     b.add_force_gravity()
     lo, hi = (0.0, 0.0, 0.0), (4.5 * width, 3.0 * width, depth)
     b.add_collider_box(lo, hi, restitution=0.0)
-    b.add_fluid(spacing=d, tolerance=tolerance)
+    b.add_fluid(spacing=d, tolerance=tolerance, method=method)
     b.add_fluid_block((0.0, 0.0, 0.0), (width, 2.0 * width, depth))
     model = b.finalize(seed=seed)
     sigma = d
@@ -65,7 +67,13 @@ def build(
         substeps=1,  # the liquid's solver splits each frame by its CFL condition
         bounds=(lo, hi),
         point_radius=0.4 * d,
-        options={"width": width, "per_width": per_width, "depth": depth, "tolerance": tolerance},
+        options={
+            "width": width,
+            "per_width": per_width,
+            "depth": depth,
+            "tolerance": tolerance,
+            "method": method,
+        },
         frames=90,
         view=(0.3, 0.5, 1.0),
         color_ranges={"speed": (0.0, 3.0)},

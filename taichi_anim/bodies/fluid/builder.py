@@ -50,18 +50,17 @@ class FluidBuilder:
         domain=None,
     ) -> None:
         """The scene's liquid: particles `spacing` [m] apart at rest (support radius 2 spacings), rest
-        `density` [kg/m^3], made incompressible by `method` "dfsph" (divergence-free SPH, Bender &
-        Koschier 2015) or "pbf" (position-based fluids, Macklin & Müller 2013: density constraints on
-        predicted positions, no divergence solve): each step's pressure solve iterates until the mean predicted density error is
-        below `tolerance` (a fraction of the rest density: 5e-4 = 0.05 %, SPlisHSPlasH's dam break), the
-        divergence solve until the mean density change over a step is below `divergence_tolerance`,
-        with at least `min_iterations` (the divergence solve at most one) and at most `max_iterations`
-        each; `viscosity`: XSPH's coefficient in [0, 1] (Monaghan 1989: each particle takes that
-        fraction of its neighbours' kernel-weighted velocity difference per step); `cfl`: a substep
-        moves no particle more than this fraction of a spacing, and lasts at most `max_step` [s] (the
-        solver splits a step into at most `max_substeps`); `domain` (lo, hi) [m]: where the liquid can
-        go (default: the container box, else 3 times the blocks' extent), which bounds the neighbour
-        grid and the boundary samples of planes."""
+        `density` [kg/m^3], made incompressible by `method` "dfsph" (divergence-free SPH, Bender & Koschier
+        2015) or "pbf" (position-based fluids, Macklin & Müller 2013: density constraints on predicted
+        positions, no divergence solve): each step's pressure solve iterates until the mean predicted density
+        error is below `tolerance` (a fraction of the rest density: 5e-4 = 0.05 %, SPlisHSPlasH's dam break),
+        the divergence solve until the mean density change over a step is below `divergence_tolerance`, with
+        at least `min_iterations` (the divergence solve at most one) and at most `max_iterations` each;
+        `viscosity`: XSPH's coefficient in [0, 1] (Monaghan 1989: each particle takes that fraction of its
+        neighbours' kernel-weighted velocity difference per step); `cfl`: a substep moves no particle more
+        than this fraction of a spacing, and lasts at most `max_step` [s] (the solver splits a step into at
+        most `max_substeps`); `domain` (lo, hi) [m]: where the liquid can go (default: the container box, else
+        3 times the blocks' extent), which bounds the neighbour grid and the boundary samples of planes."""
         if self._fluid is not None:
             raise ParameterError("add_fluid was already called: a scene holds one liquid")
         validate.choice("method", method, list(METHODS))

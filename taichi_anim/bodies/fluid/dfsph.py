@@ -37,7 +37,7 @@ import numpy as np
 import taichi as ti
 
 from ...collision.neighbors import NeighborGrid
-from ...runtime import data_oriented, np_float
+from ...runtime import backend_name, data_oriented, np_float
 from ..rigid.dynamics import body_acceleration
 from ..rigid.narrow_phase import body_sdf
 from ..rigid.quaternion import quat_matrix, world_inverse_inertia
@@ -49,6 +49,10 @@ FLUID_NEIGHBORS = 64  # listed fluid neighbours per particle (26 at rest; a comp
 BODY_NEIGHBORS = 64  # listed samples of rigid bodies per particle (~13 at a face, ~40 at a corner)
 DIVERGENCE_MIN_NEIGHBORS = 20  # sparser particles (spray, the free surface) skip the divergence solve
 ERROR_SCALE = float(1 << 40)  # fixed-point unit of the summed errors
+# Fewer liquid particles: the solves' loops run serially (see __init__). The dam_break demo's frames of
+# 1/30 s, serial against parallel loops: 33 against 57 ms at 1,024 particles, 77 against 91 at 2,000,
+# 137 against 111 at 3,456 (benchmarks/fluid_realtime.py's scene).
+FLUID_SERIAL_BELOW = 3000
 # Warm starts: the share of the last step's summed stiffness a solve starts from. A kappa summed over
 # iterations can only grow (each iteration's is clamped to compression), so too much of it overshoots:
 # the whole of it made a settling column diverge within 4 steps of 4.2 ms (the corner particles, with
@@ -77,6 +81,10 @@ class FluidDynamics:
         self.domain = (np.asarray(domain[0], dtype=np.float64), np.asarray(domain[1], dtype=np.float64))
         self.gravity = float(np.linalg.norm(body_acceleration(model)))  # |g| of the terms acting on all
         n = model.fluid_count
+        # A small liquid's loops run serially: a parallel loop costs ~0.2 ms to start on this CPU
+        # against ~0.03 ms for a serial one, more than a small liquid's work per loop (the
+        # neighbourhoods pass, the heaviest, stays parallel).
+        self.serial = backend_name() == "cpu" and n < FLUID_SERIAL_BELOW
         make = model.new_field
         grow = (self.domain[0] - self.support, self.domain[1] + self.support)
         # Cells of half the support, 5^3 of them searched (_near): at rest 125 candidates against 216 in
@@ -270,6 +278,7 @@ class FluidDynamics:
     @ti.func
     def _predict(self, h, divergence: ti.template()):
         """Each slot's stiffness kappa from its predicted error, and the errors' fixed-point sum and max."""
+        ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             d = self._flux(k)
             s, e = ti.cast(0.0, float), ti.cast(0.0, float)
@@ -288,6 +297,7 @@ class FluidDynamics:
     @ti.func
     def _correct(self, h):
         """v_k -= h [sum_j m (kappa_k + kappa_j) grad W + sum_b psi_b kappa_k grad W]; kappa summed."""
+        ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             ki = self.kappa[k]
             dv = ki * self.wall_grad[k]
@@ -308,6 +318,7 @@ class FluidDynamics:
     @ti.kernel
     def _start(self, state: ti.template(), model: ti.template(), h: float, divergence: ti.template()):
         """Warm start from a share of the last step's stiffness, then the first prediction."""
+        ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             j = self.grid.sorted_id[k]
             self.kacc[k] = 0.0
@@ -337,11 +348,13 @@ class FluidDynamics:
     @ti.kernel
     def _max_speed(self, state: ti.template(), model: ti.template()):
         self.speed[None] = 0.0
+        ti.loop_config(serialize=self.serial)
         for j in range(model.fluid_count):  # unborn nozzle slots rest: their speed is 0
             ti.atomic_max(self.speed[None], state.particle_v[model.fluid_particle[j]].norm())
 
     @ti.kernel
     def _gather_positions(self, state: ti.template(), model: ti.template()):
+        ti.loop_config(serialize=self.serial)
         for j in range(model.fluid_count):
             p = model.fluid_particle[j]
             self.cx[j] = state.particle_x[p]
@@ -467,6 +480,7 @@ class FluidDynamics:
 
     @ti.kernel
     def _write_velocities(self, state: ti.template(), model: ti.template(), h: float):
+        ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             j = self.grid.sorted_id[k]
             state.particle_v[model.fluid_particle[j]] = self.sv[k]
@@ -476,8 +490,10 @@ class FluidDynamics:
     def _gather_velocities(self, state: ti.template(), model: ti.template(), c: float):
         """v* from the method, smoothed by XSPH with the pair's mean density (Monaghan 1989, eq. 2.9):
         v_i += c sum_j (2 m / (rho_i + rho_j)) (v_j - v_i) W_ij, equal and opposite in every pair."""
+        ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             self.sv2[k] = state.particle_v[model.fluid_particle[self.grid.sorted_id[k]]]
+        ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             vi, rho = self.sv2[k], self.rho[k]
             dv = ti.Vector.zero(float, 3)
@@ -506,6 +522,7 @@ class FluidDynamics:
     def _finish(self, state: ti.template(), model: ti.template(), h: float, t: float):
         """x = x(start) + h v; colliders' and bodies' surfaces as a last guard (half a spacing away, where
         the liquid's volume ends); write back; record p and rho."""
+        ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             j = self.grid.sorted_id[k]
             p = model.fluid_particle[j]

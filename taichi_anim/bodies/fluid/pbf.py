@@ -65,6 +65,7 @@ class PositionBasedFluid(FluidDynamics):
 
     @ti.kernel
     def _predict_positions(self, h: float):
+        ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             self.px[k] = self.grid.sorted_x[k] + h * self.sv[k]
             self.kacc[k] = 0.0
@@ -75,6 +76,7 @@ class PositionBasedFluid(FluidDynamics):
         self.err_sum[None] = 0
         self.err_max[None] = 0.0
         w0 = cubic_w(0.0, self.support)
+        ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             p = self.px[k]
             # The boundary's share of the density at the start, linearised in the particle's motion
@@ -106,6 +108,7 @@ class PositionBasedFluid(FluidDynamics):
     def _project(self, h: float):
         """p_k += dp_k (Jacobi: every correction from the same lambdas); kacc sums the corrections'
         pressure equivalent for the bodies' impulses and the report."""
+        ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             p, lk = self.px[k], self.lam[k]
             dp = lk * self.wall_grad[k]
@@ -116,10 +119,12 @@ class PositionBasedFluid(FluidDynamics):
             self.px2[k] = p + dp / self.rest_density
             # dv = dp / h = -h kappa grad (dfsph.py's form): kappa = -lambda / (rho0 h^2)
             self.kacc[k] -= lk / (self.rest_density * h * h)
+        ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             self.px[k] = self.px2[k]
 
     @ti.kernel
     def _velocities(self, h: float):
+        ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             self.sv[k] = (self.px[k] - self.grid.sorted_x[k]) / h
