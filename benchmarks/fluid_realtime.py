@@ -39,7 +39,7 @@ def run(per_width: int, method: str, surface: bool, frames: int) -> dict:
 
 def main(argv=None) -> None:
     args = parse_args(__doc__, argv)
-    sizes, frames = ((8, 10), 8) if args.quick else ((8, 10, 12, 14, 16), 30)
+    sizes, frames = ((4, 6), 8) if args.quick else ((4, 6, 8, 10, 12, 14, 16), 30)
     rows, data = [], []
     for method in ("dfsph", "pbf"):
         for surface in (False, True):
