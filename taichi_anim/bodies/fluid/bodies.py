@@ -64,21 +64,68 @@ def cloth_samples(model, spacing: float) -> tuple[np.ndarray, np.ndarray, np.nda
     return rest[first], corners[first], weights[first]
 
 
+def sphere_particles(model) -> np.ndarray:
+    """(P,) the hard spheres the liquid meets: added particles of radius > 0, neither liquid nor a cloth's
+    vertices (nor an emitter's, whose particles come and go)."""
+    n = model._static_count
+    radius = np.full(n, model.uniform_radius or 0.0)
+    if model.particle_radius is not None:
+        radius = model.particle_radius.to_numpy()[:n].astype(np.float64)
+    keep = radius > 0.0
+    keep[model.fluid_particles[model.fluid_particles < n]] = False
+    if model.triangle_count:
+        keep[np.unique(model.triangles)] = False
+    return np.flatnonzero(keep)
+
+
+def sphere_samples(model, spacing: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(offsets (S,3) [m] from their sphere's centre, sphere particle (S,), sphere number (S,)): points
+    about a spacing apart (a Fibonacci lattice) on a sphere half a spacing inside each hard sphere's
+    surface; a sphere of less than 3/4 of a spacing's radius gets one sample, at its centre."""
+    spheres = sphere_particles(model)
+    radius = np.full(model.particle_count, model.uniform_radius or 0.0)
+    if model.particle_radius is not None:
+        radius = model.particle_radius.to_numpy()[: model.particle_count].astype(np.float64)
+    offsets, owner, number = [], [], []
+    for k, p in enumerate(spheres):
+        r = radius[p] - 0.5 * spacing
+        count = max(1, round(4.0 * np.pi * r * r / (spacing * spacing))) if r >= 0.25 * spacing else 1
+        if count == 1:
+            o = np.zeros((1, 3))
+        else:
+            i = np.arange(count) + 0.5
+            z = 1.0 - 2.0 * i / count
+            t = np.pi * (1.0 + 5.0**0.5) * i
+            ring = np.sqrt(1.0 - z * z)
+            o = r * np.stack([ring * np.cos(t), z, ring * np.sin(t)], 1)
+        offsets.append(o)
+        owner.append(np.full(len(o), p))
+        number.append(np.full(len(o), k))
+    if not offsets:
+        return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(offsets), np.concatenate(owner), np.concatenate(number)
+
+
 @data_oriented
 class BodySamples:
-    """The boundary samples that move: the rigid bodies' (local positions, owner >= 0) and the cloth's
-    (triangle corners and weights, owner -1), their volumes (static), world positions and velocities
-    (each substep), the impulses the liquid gives back."""
+    """The boundary samples that move: the rigid bodies' (local positions, owner >= 0), and points that
+    follow particles (owner -1): the cloth's (triangle corners and weights) and the hard spheres' (the
+    sphere's particle with weight 1, and an offset). Their volumes (static), world positions and
+    velocities (each substep), the impulses the liquid gives back."""
 
     def __init__(self, model, spacing: float, make):
         local, owner = body_samples(model, spacing) if model.rigid_count else (np.zeros((0, 3)), np.zeros(0))
         rest, corners, weights = cloth_samples(model, spacing)
-        self.rigid_count, self.cloth_count = len(local), len(rest)
-        self.count = n = self.rigid_count + self.cloth_count
-        self.has_rigid, self.has_cloth = model.rigid_count > 0, self.cloth_count > 0  # compile-time
-        # Each sample's own group, for its volume: a body, or the cloth.
-        self._local = np.concatenate([local, rest])
-        self._group = np.concatenate([owner, np.full(len(rest), model.rigid_count)]).astype(np.int64)
+        offsets, sphere, number = sphere_samples(model, spacing)
+        self.rigid_count, self.cloth_count, self.sphere_count = len(local), len(rest), len(offsets)
+        self.count = n = len(local) + len(rest) + len(offsets)
+        self.has_rigid = model.rigid_count > 0  # compile-time
+        self.has_points = len(rest) + len(offsets) > 0
+        # Each sample's own group, for its volume: a body, the cloth, or a sphere.
+        centres = model._x0[sphere] if len(sphere) else np.zeros((0, 3))
+        self._local = np.concatenate([local, rest, centres + offsets])
+        b = model.rigid_count
+        self._group = np.concatenate([owner, np.full(len(rest), b), b + 1 + number]).astype(np.int64)
         self.local = make(self, "fluid_body_local", float, n, (3,))
         self.owner = make(self, "fluid_body_owner", ti.i32, n)
         self.corners = make(self, "fluid_body_corners", ti.i32, n, (3,))
@@ -86,18 +133,24 @@ class BodySamples:
         self.psi = make(self, "fluid_body_psi", float, n)  # filled by the solver (_volumes)
         self.x = make(self, "fluid_body_x", float, n, (3,))  # world, at the substep's start
         self.v = make(self, "fluid_body_v", float, n, (3,))
-        self.local.from_numpy(self._local.astype(np_float()))
-        self.owner.from_numpy(np.concatenate([owner, np.full(len(rest), -1)]).astype(np.int32))
-        self.corners.from_numpy(np.concatenate([np.zeros((len(local), 3)), corners]).astype(np.int32))
-        self.weights.from_numpy(np.concatenate([np.zeros((len(local), 3)), weights]).astype(np_float()))
-        b = max(model.rigid_count, 1)
-        self.impulse = make(self, "fluid_body_impulse", float, b, (3,))
-        self.moment = make(self, "fluid_body_moment", float, b, (3,))
+        zeros = np.zeros((len(rest), 3))
+        self.local.from_numpy(np.concatenate([local, zeros, offsets]).astype(np_float()))
+        self.owner.from_numpy(np.concatenate([owner, np.full(len(rest) + len(offsets), -1)]).astype(np.int32))
+        one = np.zeros((len(offsets), 3))
+        one[:, 0] = 1.0
+        self.corners.from_numpy(
+            np.concatenate([np.zeros((len(local), 3)), corners, np.repeat(sphere[:, None], 3, 1)]).astype(
+                np.int32
+            )
+        )
+        self.weights.from_numpy(np.concatenate([np.zeros((len(local), 3)), weights, one]).astype(np_float()))
+        self.impulse = make(self, "fluid_body_impulse", float, max(b, 1), (3,))
+        self.moment = make(self, "fluid_body_moment", float, max(b, 1), (3,))
 
     def apart(self, reach: float):
-        """(positions field (S,3), lo, hi): every body's samples in its own frame and the cloth's at rest,
-        the groups set side by side along x more than `reach` [m] apart, so that a neighbour search
-        finds each group's own samples only (their volumes, psi_b)."""
+        """(positions field (S,3), lo, hi): every body's samples in its own frame, the cloth's and the
+        spheres' at rest, the groups set side by side along x more than `reach` [m] apart, so that a
+        neighbour search finds each group's own samples only (their volumes, psi_b)."""
         extent = float(np.abs(self._local).max()) if self.count else 0.0
         step = 2.0 * extent + 2.0 * reach
         x = self._local.copy()
@@ -107,9 +160,10 @@ class BodySamples:
         return field, x.min(axis=0) - reach, x.max(axis=0) + reach
 
     @ti.func
-    def _cloth_point(self, state: ti.template(), s):
-        """A cloth sample's position and velocity from its triangle's corners."""
-        x, v = ti.Vector.zero(float, 3), ti.Vector.zero(float, 3)
+    def _point(self, state: ti.template(), s):
+        """A point sample's position and velocity from its particles (a cloth triangle's corners, or a
+        sphere's centre with its offset)."""
+        x, v = self.local[s], ti.Vector.zero(float, 3)
         for c in ti.static(range(3)):
             i = self.corners[s][c]
             x += self.weights[s][c] * state.particle_x[i]
@@ -118,7 +172,7 @@ class BodySamples:
 
     @ti.kernel
     def place(self, model: ti.template(), state: ti.template()):
-        """World positions and velocities of the samples from the bodies' poses and the cloth now."""
+        """World positions and velocities of the samples from the bodies' poses and the particles now."""
         for s in range(self.count):
             b = self.owner[s]
             if b >= 0:
@@ -127,12 +181,12 @@ class BodySamples:
                     self.x[s] = state.rigid_x[b] + arm
                     self.v[s] = state.rigid_v[b] + state.rigid_w[b].cross(arm)
             else:
-                if ti.static(self.has_cloth):
-                    self.x[s], self.v[s] = self._cloth_point(state, s)
+                if ti.static(self.has_points):
+                    self.x[s], self.v[s] = self._point(state, s)
 
     @ti.kernel
     def move(self, model: ti.template(), state: ti.template()):
-        """The samples' velocities from the bodies' and the cloth's velocities now (positions stay the
+        """The samples' velocities from the bodies' and particles' velocities now (positions stay the
         substep's start)."""
         for s in range(self.count):
             b = self.owner[s]
@@ -140,5 +194,5 @@ class BodySamples:
                 if ti.static(self.has_rigid):
                     self.v[s] = state.rigid_v[b] + state.rigid_w[b].cross(self.x[s] - state.rigid_x[b])
             else:
-                if ti.static(self.has_cloth):
-                    _, self.v[s] = self._cloth_point(state, s)
+                if ti.static(self.has_points):
+                    _, self.v[s] = self._point(state, s)

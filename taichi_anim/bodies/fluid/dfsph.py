@@ -41,7 +41,7 @@ from ...runtime import backend_name, data_oriented, np_float
 from ..rigid.dynamics import body_acceleration
 from ..rigid.narrow_phase import body_sdf
 from ..rigid.quaternion import quat_matrix, world_inverse_inertia
-from .bodies import BodySamples
+from .bodies import BodySamples, sphere_particles
 from .boundary import boundary_samples
 from .sph_kernel import cubic_w, cubic_w_grad, lattice_sum
 
@@ -111,7 +111,7 @@ class FluidDynamics:
             self._volumes(self.boundary, self.boundary_psi, False)
         # Rigid bodies and cloth in the liquid: samples on their surfaces, moving with them, and a grid
         # over them built every substep (bodies.py).
-        self.coupled = model.rigid_count > 0 or model.triangle_count > 0
+        self.coupled = model.rigid_count > 0 or model.triangle_count > 0 or len(sphere_particles(model)) > 0
         if self.coupled:
             self.bodies = BodySamples(model, self.spacing, make)
             # Each body's samples apart from the others' (its own volumes only), in one grid.
@@ -441,8 +441,8 @@ class FluidDynamics:
                     if ti.static(rigid):
                         self.bodies.impulse[b] += j
                         self.bodies.moment[b] += (self.bodies.x[s] - state.rigid_x[b]).cross(j)
-                else:  # a cloth sample: to its triangle's corners by its weights
-                    if ti.static(self.bodies.has_cloth):
+                else:  # a point sample: to its particles by its weights (a cloth triangle, a sphere)
+                    if ti.static(self.bodies.has_points):
                         for c in ti.static(range(3)):
                             i = self.bodies.corners[s][c]
                             state.particle_v[i] += (self.bodies.weights[s][c] * model.inv_mass(i)) * j
