@@ -15,6 +15,17 @@ from .blobs import BlobScene
 from .dam_break import FRAME_DT, half_level
 
 
+VIEW = (0.6, 0.5, 1.0)  # the camera's direction from the scene's centre
+
+
+def back_half(mesh, view):
+    """The triangles of `mesh` on the far side of the y axis from a camera looking from `view`: a
+    cut-away that shows what the mesh holds (the renderer draws props opaque)."""
+    v, f = mesh
+    toward = np.array([view[0], 0.0, view[2]])
+    return v, f[v[f].mean(axis=1) @ toward < 0.0]
+
+
 def glass_mesh(radius: float, height: float, wall: float, segments: int = 48):
     """A glass of outer `radius` and `height` [m] with walls and a bottom `wall` [m] thick, standing on
     y = 0 around the y axis, as a closed mesh (vertices, triangles)."""
@@ -41,7 +52,8 @@ def build(
     radius, height, wall = 0.06, 0.15, 0.012
     b = Builder()
     b.add_force_gravity()
-    b.add_collider_mesh(glass_mesh(radius, height, wall), restitution=0.0)
+    glass = glass_mesh(radius, height, wall)
+    b.add_collider_mesh(glass, restitution=0.0)
     b.add_collider_plane((0.0, 1.0, 0.0), 0.0, restitution=0.0)  # the table the glass stands on
     lo, hi = np.array([-radius, 0.0, -radius]), np.array([radius, height + 0.03, radius])
     b.add_fluid(spacing=spacing, domain=(lo, hi))
@@ -72,7 +84,8 @@ def build(
         point_radius=0.4 * spacing,
         options={"spacing": spacing, "pour_time": pour_time, "speed": speed, "box_density": box_density},
         frames=120,
-        view=(0.6, 0.5, 1.0),
+        view=VIEW,
+        props=[back_half(glass, VIEW)],  # drawn only: the half away from the camera, so the water shows
         color_ranges={"speed": (0.0, 2.5)},
         blobs=field,
         iso=half_level(spacing, sigma),
