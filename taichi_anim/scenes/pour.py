@@ -14,7 +14,6 @@ from ..shapes import Box
 from .blobs import BlobScene
 from .dam_break import FRAME_DT, half_level
 
-
 VIEW = (0.6, 0.5, 1.0)  # the camera's direction from the scene's centre
 
 
