@@ -44,6 +44,7 @@ class FluidBuilder:
         min_iterations: int = 2,
         max_iterations: int = 100,
         viscosity: float = 0.01,
+        surface_tension: float = 0.0,
         cfl: float = 0.4,
         max_step: float = 0.005,
         max_substeps: int = 64,
@@ -57,10 +58,12 @@ class FluidBuilder:
         the divergence solve until the mean density change over a step is below `divergence_tolerance`, with
         at least `min_iterations` (the divergence solve at most one) and at most `max_iterations` each;
         `viscosity`: XSPH's coefficient in [0, 1] (Monaghan 1989: each particle takes that fraction of its
-        neighbours' kernel-weighted velocity difference per step); `cfl`: a substep moves no particle more
-        than this fraction of a spacing, and lasts at most `max_step` [s] (the solver splits a step into at
-        most `max_substeps`); `domain` (lo, hi) [m]: where the liquid can go (default: the container box, else
-        3 times the blocks' extent), which bounds the neighbour grid and the boundary samples of planes."""
+        neighbours' kernel-weighted velocity difference per step); `surface_tension`: the gamma of Akinci et
+        al.'s (2013) cohesion and curvature forces between neighbours (0: none; SPlisHSPlasH's examples use
+        0.1 to 1); `cfl`: a substep moves no particle more than this fraction of a spacing, and lasts at most
+        `max_step` [s] (the solver splits a step into at most `max_substeps`); `domain` (lo, hi) [m]: where
+        the liquid can go (default: the container box, else 3 times the blocks' extent), which bounds the
+        neighbour grid and the boundary samples of planes."""
         if self._fluid is not None:
             raise ParameterError("add_fluid was already called: a scene holds one liquid")
         validate.choice("method", method, list(METHODS))
@@ -77,6 +80,7 @@ class FluidBuilder:
             min_iterations=validate.count("min_iterations", min_iterations, 0),
             max_iterations=validate.count("max_iterations", max_iterations, 1),
             viscosity=validate.in_range("viscosity", viscosity, 0.0, 1.0),
+            surface_tension=validate.non_negative("surface_tension", surface_tension),
             cfl=validate.in_range("cfl", cfl, 1e-3, 1.0),
             max_step=validate.positive("max_step", max_step),
             max_substeps=validate.count("max_substeps", max_substeps, 1),

@@ -13,8 +13,8 @@ the 2017 paper, with Akinci's boundary samples b: boundary.py)
    v_i -= h [ sum_j m_j (kappa_i + kappa_j) grad W_ij + sum_b psi_b kappa_i grad W_ib ]   (eq. 11, 12)
    until the mean of h Drho/Dt / rho0 is below the divergence tolerance;
 2. the method adds the non-pressure forces (gravity, ...) to the velocities (v*), and the solver adds
-   XSPH viscosity (Monaghan, "On the problem of penetration in particle methods", JCP 1989,
-   eq. 2.9, with the pair's mean density);
+   XSPH viscosity (Monaghan, "On the problem of penetration in particle methods", JCP 1989, eq. 2.9,
+   with the pair's mean density), then surface tension if asked (surface_tension.py);
 3. after it: the density solve (alg. 3) corrects v* until the predicted density
    rho*_i = rho_i + h Drho_i/Dt, clamped to compression, is within the tolerance of rho0 on average,
    with kappa_i = (rho*_i - rho0) alpha_i / h^2 and the same velocity update;
@@ -41,6 +41,7 @@ from ...runtime import backend_name, data_oriented, np_float
 from ..rigid.dynamics import body_acceleration
 from ..rigid.narrow_phase import body_sdf
 from ..rigid.quaternion import quat_matrix, world_inverse_inertia
+from . import surface_tension
 from .bodies import BodySamples, sphere_particles
 from .boundary import boundary_samples
 from .sph_kernel import cubic_w, cubic_w_grad, lattice_sum
@@ -68,13 +69,15 @@ class FluidDynamics:
     name = "fluid"
 
     def __init__(self, model, *, spacing, density, method, tolerance, divergence_tolerance, min_iterations,
-                 max_iterations, viscosity, cfl, max_step, max_substeps, domain, mass):  # fmt: skip
+                 max_iterations, viscosity, cfl, max_step, max_substeps, domain, mass,
+                 surface_tension=0.0):  # fmt: skip
         self.model = model
         self.method = method
         self.tolerance = float(tolerance)
         self.divergence_tolerance = float(divergence_tolerance)
         self.min_iterations, self.max_iterations = int(min_iterations), int(max_iterations)
         self.viscosity, self.cfl, self.max_substeps = float(viscosity), float(cfl), int(max_substeps)
+        self.surface_tension = float(surface_tension)
         self.max_step = float(max_step)
         self.spacing, self.rest_density, self.mass = float(spacing), float(density), float(mass)
         self.support = model.fluid_support
@@ -138,6 +141,8 @@ class FluidDynamics:
         self.err_max = f("fluid_err_max", shape=())
         self.overflow = f("fluid_overflow", ti.i32, shape=())
         self.speed = f("fluid_speed", shape=())
+        if self.surface_tension > 0.0:
+            self.normal = f("fluid_normal", dims=(3,))  # surface_tension.py's n_k, by slot
         # Nozzles (add_fluid_emitter) give liquid particles birth times: the solves run over the live ones.
         self.emitted = model.emitter_count > 0
         if self.emitted:
@@ -180,6 +185,8 @@ class FluidDynamics:
     def after_substep(self, model, state, h: float, step: int) -> None:
         """XSPH, the density solve, then positions from the corrected velocities."""
         self._gather_velocities(state, model, self.viscosity)
+        if self.surface_tension > 0.0:
+            self._surface_tension(h, self.surface_tension)
         iterations, mean, worst = self._density_step(h, state)
         self._finish(state, model, h, float(state.time + h))
         self.last.update(density_iterations=iterations, mean_density_error=mean, max_density_error=worst)
@@ -200,7 +207,8 @@ class FluidDynamics:
         return dict(
             method=self.method, tolerance=self.tolerance, divergence_tolerance=self.divergence_tolerance,
             min_iterations=self.min_iterations, max_iterations=self.max_iterations,
-            viscosity=self.viscosity, cfl=self.cfl, max_step=self.max_step, max_substeps=self.max_substeps,
+            viscosity=self.viscosity, surface_tension=self.surface_tension, cfl=self.cfl,
+            max_step=self.max_step, max_substeps=self.max_substeps,
             boundary_particles=self.boundary_count, neighbor_search=self.grid.settings(),
         )  # fmt: skip
 
@@ -501,6 +509,12 @@ class FluidDynamics:
                 kk = self.nbr[k, m]
                 dv += (self.sv2[kk] - vi) * (2.0 * self.weight[k, m] / (rho + self.rho[kk]))
             self.sv[k] = vi + c * self.mass * dv
+
+    @ti.kernel
+    def _surface_tension(self, h: float, gamma: float):
+        """Akinci et al. 2013's cohesion and curvature forces on v* (surface_tension.py)."""
+        surface_tension.normals(self)
+        surface_tension.accelerate(self, h, gamma)
 
     @ti.func
     def _outside_bodies(self, model: ti.template(), state: ti.template(), x):
