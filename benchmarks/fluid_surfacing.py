@@ -20,7 +20,7 @@ from harness import Page, clock, fmt_s, init, log, median_time, parse_args
 
 import taichi_anim as ta
 from taichi_anim.scenes import make_scene
-from taichi_anim.scenes.dam_break import half_level
+from taichi_anim.scenes.dam_break import LIQUID_CUTOFF, half_level
 from taichi_anim.spatial import mesh_report
 
 
@@ -43,10 +43,10 @@ def quality(v, f, n: int, d: float) -> dict:
 
 
 def ours(x: np.ndarray, d: float, repeats: int) -> dict:
-    lo, hi = x.min(axis=0) - 3.0 * d, x.max(axis=0) + 3.0 * d
+    lo, hi = x.min(axis=0) - LIQUID_CUTOFF * d, x.max(axis=0) + LIQUID_CUTOFF * d
     resolution = int(np.ceil((hi - lo).max() / (0.5 * d))) + 1  # grid spacing d/2
-    bf = ta.BlobField(capacity=len(x), sigma=d, bounds=(lo, hi), resolution=resolution)
-    iso = half_level(d, d)
+    bf = ta.BlobField(capacity=len(x), sigma=d, bounds=(lo, hi), resolution=resolution, cutoff=LIQUID_CUTOFF)
+    iso = half_level(d, d, LIQUID_CUTOFF)
 
     def surface():
         bf.evaluate(x)
@@ -100,7 +100,7 @@ def main(argv=None) -> None:
         args,
         {"clouds": "dam_break demo columns (per_width 10/20/30 across a), at rest and after 0.4 s",
          "grid": "half a spacing (the particle radius) for both",
-         "ours": "Gaussian blobs sigma = d, iso = half the interior value, cutoff 3 sigma, "
+         "ours": f"Gaussian blobs sigma = d, iso = half the interior value, cutoff {LIQUID_CUTOFF} sigma, "
                  "Open3D marching cubes",
          "splashsurf": "smoothing length 2r (support 2d), cube r, iso 0.6, rest density 1000, multi-threaded",
          "threads": os.cpu_count(), "repeats": f"median of {repeats} after the first call"},

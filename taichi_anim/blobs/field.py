@@ -113,6 +113,14 @@ class BlobField:
             method=neighbor_method,
             make=make,
         )
+        # The surface's vertices query the particles within the cutoff only: a grid of cutoff-sized cells
+        # visits 27 (3 sigma)^3 of them per vertex against 27 (block radius)^3 in the blocks' grid (8x
+        # fewer; the normals of a 54,000-particle liquid's surface took 68 ms with the blocks' grid).
+        rc = self.cutoff_radius
+        box = (tuple(lo - rc), tuple(np.asarray(self.hi) + rc))
+        self.vertex_neighbors = make_neighbor_search(
+            self.capacity, rc, domain=box, method=neighbor_method, make=make
+        )
         self._x = None  # staging field for NumPy input, allocated on first use
         self._inv_s2 = 1.0 / self.sigma**2
         v3i = ti.types.vector(3, ti.i32)
@@ -157,6 +165,7 @@ class BlobField:
             self._x.from_numpy(buf)
             x, count, death = self._x, len(pts), None
         self.neighbors.build(x, count, death, t)
+        self.vertex_neighbors.build(x, count, death, t)
         self._evaluate()
 
     @ti.func
@@ -298,7 +307,7 @@ class BlobField:
 
     @ti.func
     def _add_gradient(self, i, k, ret: ti.template()):
-        d = ret.p - self.neighbors.sorted_x[k]
+        d = ret.p - self.vertex_neighbors.sorted_x[k]
         ret.g += d * ti.exp(-d.norm_sqr() * self._inv_s2)
 
     @ti.kernel
@@ -306,7 +315,7 @@ class BlobField:
         for v in range(points.shape[0]):
             p = ti.Vector([points[v, 0], points[v, 1], points[v, 2]], dt=float)
             acc = self._Grad(p=p, g=ti.Vector.zero(float, 3))
-            self.neighbors.for_each_neighbor(v, p, self.cutoff_radius, self._add_gradient, acc)
+            self.vertex_neighbors.for_each_neighbor(v, p, self.cutoff_radius, self._add_gradient, acc)
             # -grad psi = (2 / sigma^2) sum (p - p_i) exp(...): the positive factor drops out on normalising.
             length = acc.g.norm()
             n = ti.Vector.zero(float, 3)

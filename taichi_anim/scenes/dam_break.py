@@ -16,12 +16,37 @@ from .blobs import BlobScene
 FRAME_DT = 1 / 60  # [s]
 
 
-def half_level(spacing: float, sigma: float) -> float:
-    """Half of the blob field sum_j exp(-|x - x_j|^2 / sigma^2) inside a cubic lattice of `spacing`."""
-    n = int(math.ceil(3.0 * sigma / spacing))
+# The liquid's blobs reach 2.5 sigma (the field's default is 3): a blob's truncation is then
+# exp(-6.25) = 0.2 % of its peak, and the field takes two thirds of the time with the same smooth surface
+# (a 54,000-particle column: 184 against 276 ms, 71,992 triangles both; at 2 sigma the truncation
+# dimples the surface, 41 % more triangles). The iso level uses the same cutoff.
+LIQUID_CUTOFF = 2.5
+
+
+def half_level(spacing: float, sigma: float, cutoff: float = 3.0) -> float:
+    """Half of the blob field sum_j exp(-|x - x_j|^2 / sigma^2) over |x - x_j| < cutoff sigma inside a
+    cubic lattice of `spacing`."""
+    n = int(math.ceil(cutoff * sigma / spacing))
     k = np.arange(-n, n + 1) * spacing
     g = np.stack(np.meshgrid(k, k, k, indexing="ij"), -1).reshape(-1, 3)
-    return 0.5 * float(np.exp(-(g**2).sum(axis=1) / sigma**2).sum())
+    r2 = (g**2).sum(axis=1)
+    return 0.5 * float(np.exp(-r2[r2 < (cutoff * sigma) ** 2] / sigma**2).sum())
+
+
+def liquid_surface(model, spacing: float, bounds, resolution: int) -> tuple[BlobField, float]:
+    """(the blob field, its iso level) that surfaces a liquid of `spacing` [m] within `bounds` (lo, hi)
+    [m]: blobs of sigma = spacing to LIQUID_CUTOFF, at the half level, which on a flat surface lies
+    half a spacing beyond the outer particles; `resolution` nodes along the bounds' longest side."""
+    margin = LIQUID_CUTOFF * spacing
+    field = BlobField(
+        capacity=model.particle_capacity,
+        make=model.new_field,
+        sigma=spacing,
+        bounds=(np.subtract(bounds[0], margin), np.add(bounds[1], margin)),
+        resolution=resolution,
+        cutoff=LIQUID_CUTOFF,
+    )
+    return field, half_level(spacing, spacing, LIQUID_CUTOFF)
 
 
 def build(
@@ -47,16 +72,7 @@ def build(
     b.add_fluid(spacing=d, tolerance=tolerance, method=method)
     b.add_fluid_block((0.0, 0.0, 0.0), (width, 2.0 * width, depth))
     model = b.finalize(seed=seed)
-    sigma = d
-    iso = half_level(d, sigma)
-    margin = 3.0 * sigma
-    field = BlobField(
-        capacity=model.particle_capacity,
-        make=model.new_field,
-        sigma=sigma,
-        bounds=(np.subtract(lo, margin), np.add(hi, margin)),
-        resolution=resolution,
-    )
+    field, iso = liquid_surface(model, d, (lo, hi), resolution)
     return BlobScene(
         name="dam_break",
         description=f"a {model.fluid_count}-particle water column collapsing in a tank, surfaced by blobs",

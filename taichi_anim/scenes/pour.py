@@ -8,11 +8,10 @@ by the course's blobs at the half level (as dam_break). run.json records each fr
 import numpy as np
 
 from .. import Builder, make_integrator
-from ..blobs import BlobField
 from ..geometry import revolve_mesh
 from ..shapes import Box
 from .blobs import BlobScene
-from .dam_break import FRAME_DT, half_level
+from .dam_break import FRAME_DT, liquid_surface
 
 VIEW = (0.6, 0.5, 1.0)  # the camera's direction from the scene's centre
 
@@ -62,15 +61,7 @@ def build(
                         direction=(0.0, -1.0, 0.0), start_time=0.2, stop_time=0.2 + pour_time)  # fmt: skip
     b.add_rigid_body(Box((0.02, 0.02, 0.02)), density=box_density, position=(-0.02, level + 0.03, 0.0))
     model = b.finalize(seed=seed)
-    sigma = spacing
-    margin = 3.0 * sigma
-    field = BlobField(
-        capacity=model.particle_capacity,
-        make=model.new_field,
-        sigma=sigma,
-        bounds=(lo - margin, hi + margin),
-        resolution=resolution,
-    )
+    field, iso = liquid_surface(model, spacing, (lo, hi), resolution)
     return BlobScene(
         name="pour",
         description=f"water poured into a glass ({model.fluid_count} particles at most), a box floating up",
@@ -87,5 +78,5 @@ def build(
         props=[back_half(glass, VIEW)],  # drawn only: the half away from the camera, so the water shows
         color_ranges={"speed": (0.0, 2.5)},
         blobs=field,
-        iso=half_level(spacing, sigma),
+        iso=iso,
     )
