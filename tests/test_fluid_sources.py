@@ -152,3 +152,31 @@ def test_bad_sources_are_refused_with_the_parameter_named():
         )  # a thimble: its box's one lattice point in its hollow
     with pytest.raises(ParameterError, match="profile"):
         revolve_mesh([(0.1, 0.0), (0.1, 1.0), (0.0, 1.0)])
+
+
+@pytest.mark.slow  # the whole demo, 2 s: about 40 s on 2 cores
+def test_the_pour_demo_fills_its_glass_and_floats_its_box():
+    """The `pour` demo to its end: every particle the nozzle emitted is in the glass (inside its inner
+    wall, above its bottom); the water stands at the level its volume and the box's submerged part give
+    over the glass's inner section (the 48-gon's area), within a spacing (measured 0.3 spacing under
+    it); the wooden box (500 kg/m^3) floats with its bottom within a spacing of half its height under
+    that level (measured 1.09 times half its height)."""
+    from taichi_anim.scenes import make_scene
+
+    ta.init("cpu")
+    scene = make_scene("pour")
+    model, state = scene.model, scene.state
+    for _ in range(scene.frames):
+        scene.advance_frame()
+    d = scene.options["spacing"]
+    live = alive(model, state)
+    x = state.positions()[model.fluid_particles][live]
+    inner, bottom = 0.06 - 0.012, 0.012
+    assert live.sum() > 1000 and np.hypot(x[:, 0], x[:, 2]).max() < inner and x[:, 1].min() > bottom
+    area = 0.5 * 48 * inner**2 * np.sin(2 * np.pi / 48)
+    box_bottom = state.rigid_snapshot().com[0, 1] - 0.02
+    # (level - bottom) area = N d^3 + the box's submerged part, 0.04^2 (level - box_bottom)
+    level = (bottom * area + live.sum() * d**3 - 0.04**2 * box_bottom) / (area - 0.04**2)
+    top = np.sort(x[:, 1])[-20:].mean() + 0.5 * d
+    assert top == pytest.approx(level, abs=d)
+    assert level - box_bottom == pytest.approx(0.02, abs=d)
