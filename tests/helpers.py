@@ -110,3 +110,17 @@ def mesh_drop(*, rings: int, segments: int, frames_dt: float = 1.0 / 600.0):
     model = b.finalize()
     integrator = ta.make_integrator("symplectic_euler")
     return SimpleNamespace(model=model, integrator=integrator, state=model.state(), dt=frames_dt, substeps=1)
+
+
+def momentum_exchange(model, frames: int, dt: float):
+    """`model` stepped from its start by symplectic Euler for `frames` steps of dt [s]: (the largest
+    component of the change of the total momentum sum m v, its scale sum m |v| after, the velocities
+    after), what a check of momentum exchanged between kinds compares."""
+    state = model.state()
+    stepper = ta.make_integrator("symplectic_euler").stepper_for(model)
+    mass = model.particle_masses()[:, None]
+    p0 = (mass * state.velocities()).sum(axis=0)
+    for _ in range(frames):
+        stepper.advance(state, dt, 1)
+    v = state.velocities()
+    return float(np.abs((mass * v).sum(axis=0) - p0).max()), float((mass * np.abs(v)).sum()), v
