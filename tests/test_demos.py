@@ -16,7 +16,10 @@ from taichi_anim.scenes import SCENES, make_scene
 # f32 compile) are slow too: each scene's physics runs in the default suite (test_flag_flies_downwind_
 # from_its_pole, test_mesh_colliders, test_rigid_demos), and the paths they export through are those of
 # cloth (a cloth mesh) and dominoes (the bodies' mesh), which run here.
-SLOW_EXPORTS = {"spheres", "flag", "moving_mesh", "pile", "rigid_cloth"}
+# The pour demo's export (56 s on a fresh cache: the liquid's, the bodies' and the mesh collider's
+# kernels together) is slow too: its physics runs in the suite (tests/test_fluid_sources.py: nozzles,
+# filled meshes, a poured box; test_fluid_bodies.py: floating bodies), its export path is dam_break's.
+SLOW_EXPORTS = {"spheres", "flag", "moving_mesh", "pile", "rigid_cloth", "pour"}
 
 
 @pytest.mark.parametrize(
