@@ -143,6 +143,12 @@ def test_bad_sources_are_refused_with_the_parameter_named():
         b.add_fluid_emitter(center=(0, 0, 0), radius=0.02, speed=0.0, stop_time=1.0)
     with pytest.raises(ParameterError, match="capacity"):
         b.add_fluid_emitter(center=(0, 0, 0), radius=0.02, speed=1.0, capacity=10**12)
+    outside = ta.Builder()
+    outside.add_collider_box((0.0, 0.0, 0.0), (0.1, 0.1, 0.1))
+    outside.add_fluid(spacing=D)
+    outside.add_fluid_emitter(center=(0.05, 0.5, 0.05), radius=0.02, speed=1.0, stop_time=1.0)
+    with pytest.raises(ParameterError, match="center .* outside the liquid's domain"):
+        outside.finalize()
     v, f = box_mesh((0, 0, 0), (0.1, 0.1, 0.1))
     with pytest.raises(ParameterError, match="closed"):
         b.add_fluid_mesh((v, f[:-1]))  # one triangle missing: open

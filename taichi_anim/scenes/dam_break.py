@@ -33,10 +33,11 @@ def half_level(spacing: float, sigma: float, cutoff: float = 3.0) -> float:
     return 0.5 * float(np.exp(-r2[r2 < (cutoff * sigma) ** 2] / sigma**2).sum())
 
 
-def liquid_surface(model, spacing: float, bounds, resolution: int) -> tuple[BlobField, float]:
-    """(the blob field, its iso level) that surfaces a liquid of `spacing` [m] within `bounds` (lo, hi)
-    [m]: blobs of sigma = spacing to LIQUID_CUTOFF, at the half level, which on a flat surface lies
-    half a spacing beyond the outer particles; `resolution` nodes along the bounds' longest side."""
+def liquid_scene(name: str, model, *, integrator: str, spacing: float, bounds, resolution: int, **scene):
+    """A BlobScene of a liquid of `spacing` [m] within `bounds` (lo, hi) [m], in frames of FRAME_DT that
+    the liquid's solver splits by its CFL condition, surfaced every frame by blobs of sigma = spacing
+    reaching LIQUID_CUTOFF at the half level (on a flat surface half a spacing beyond the outer
+    particles), `resolution` nodes along the bounds' longest side; `scene`: the other BlobScene fields."""
     margin = LIQUID_CUTOFF * spacing
     field = BlobField(
         capacity=model.particle_capacity,
@@ -46,7 +47,19 @@ def liquid_surface(model, spacing: float, bounds, resolution: int) -> tuple[Blob
         resolution=resolution,
         cutoff=LIQUID_CUTOFF,
     )
-    return field, half_level(spacing, spacing, LIQUID_CUTOFF)
+    return BlobScene(
+        name=name,
+        model=model,
+        state=model.state(),
+        integrator=make_integrator(integrator),
+        dt=FRAME_DT,
+        substeps=1,  # the liquid's solver splits each frame by its CFL condition
+        bounds=bounds,
+        point_radius=0.4 * spacing,
+        blobs=field,
+        iso=half_level(spacing, spacing, LIQUID_CUTOFF),
+        **scene,
+    )
 
 
 def build(
@@ -72,27 +85,17 @@ def build(
     b.add_fluid(spacing=d, tolerance=tolerance, method=method)
     b.add_fluid_block((0.0, 0.0, 0.0), (width, 2.0 * width, depth))
     model = b.finalize(seed=seed)
-    field, iso = liquid_surface(model, d, (lo, hi), resolution)
-    return BlobScene(
-        name="dam_break",
-        description=f"a {model.fluid_count}-particle water column collapsing in a tank, surfaced by blobs",
-        model=model,
-        state=model.state(),
-        integrator=make_integrator(integrator),
-        dt=FRAME_DT,
-        substeps=1,  # the liquid's solver splits each frame by its CFL condition
+    return liquid_scene(
+        "dam_break",
+        model,
+        integrator=integrator,
+        spacing=d,
         bounds=(lo, hi),
-        point_radius=0.4 * d,
-        options={
-            "width": width,
-            "per_width": per_width,
-            "depth": depth,
-            "tolerance": tolerance,
-            "method": method,
-        },
+        resolution=resolution,
+        description=f"a {model.fluid_count}-particle water column collapsing in a tank, surfaced by blobs",
+        options={"width": width, "per_width": per_width, "depth": depth, "tolerance": tolerance,
+                 "method": method},
         frames=90,
         view=(0.3, 0.5, 1.0),
         color_ranges={"speed": (0.0, 3.0)},
-        blobs=field,
-        iso=iso,
-    )
+    )  # fmt: skip

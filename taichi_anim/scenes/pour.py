@@ -7,11 +7,11 @@ by the course's blobs at the half level (as dam_break). run.json records each fr
 
 import numpy as np
 
-from .. import Builder, make_integrator
+from .. import Builder
 from ..geometry import revolve_mesh
 from ..shapes import Box
 from .blobs import BlobScene
-from .dam_break import FRAME_DT, liquid_surface
+from .dam_break import liquid_scene
 
 VIEW = (0.6, 0.5, 1.0)  # the camera's direction from the scene's centre
 
@@ -61,22 +61,17 @@ def build(
                         direction=(0.0, -1.0, 0.0), start_time=0.2, stop_time=0.2 + pour_time)  # fmt: skip
     b.add_rigid_body(Box((0.02, 0.02, 0.02)), density=box_density, position=(-0.02, level + 0.03, 0.0))
     model = b.finalize(seed=seed)
-    field, iso = liquid_surface(model, spacing, (lo, hi), resolution)
-    return BlobScene(
-        name="pour",
-        description=f"water poured into a glass ({model.fluid_count} particles at most), a box floating up",
-        model=model,
-        state=model.state(),
-        integrator=make_integrator(integrator),
-        dt=FRAME_DT,
-        substeps=1,  # the liquid's solver splits each frame by its CFL condition
+    return liquid_scene(
+        "pour",
+        model,
+        integrator=integrator,
+        spacing=spacing,
         bounds=(lo, hi),
-        point_radius=0.4 * spacing,
+        resolution=resolution,
+        description=f"water poured into a glass ({model.fluid_count} particles at most), a box floating up",
         options={"spacing": spacing, "pour_time": pour_time, "speed": speed, "box_density": box_density},
         frames=120,
         view=VIEW,
         props=[back_half(glass, VIEW)],  # drawn only: the half away from the camera, so the water shows
         color_ranges={"speed": (0.0, 2.5)},
-        blobs=field,
-        iso=iso,
     )

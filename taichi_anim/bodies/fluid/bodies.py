@@ -68,10 +68,7 @@ def sphere_particles(model) -> np.ndarray:
     """(P,) the hard spheres the liquid meets: added particles of radius > 0, neither liquid nor a cloth's
     vertices (nor an emitter's, whose particles come and go)."""
     n = model._static_count
-    radius = np.full(n, model.uniform_radius or 0.0)
-    if model.particle_radius is not None:
-        radius = model.particle_radius.to_numpy()[:n].astype(np.float64)
-    keep = radius > 0.0
+    keep = model.particle_radii(np.arange(n)) > 0.0
     keep[model.fluid_particles[model.fluid_particles < n]] = False
     if model.triangle_count:
         keep[np.unique(model.triangles)] = False
@@ -83,12 +80,10 @@ def sphere_samples(model, spacing: float) -> tuple[np.ndarray, np.ndarray, np.nd
     about a spacing apart (a Fibonacci lattice) on a sphere half a spacing inside each hard sphere's
     surface; a sphere of less than 3/4 of a spacing's radius gets one sample, at its centre."""
     spheres = sphere_particles(model)
-    radius = np.full(model.particle_count, model.uniform_radius or 0.0)
-    if model.particle_radius is not None:
-        radius = model.particle_radius.to_numpy()[: model.particle_count].astype(np.float64)
+    radius = model.particle_radii(spheres).astype(np.float64)
     offsets, owner, number = [], [], []
     for k, p in enumerate(spheres):
-        r = radius[p] - 0.5 * spacing
+        r = radius[k] - 0.5 * spacing
         count = max(1, round(4.0 * np.pi * r * r / (spacing * spacing))) if r >= 0.25 * spacing else 1
         if count == 1:
             o = np.zeros((1, 3))

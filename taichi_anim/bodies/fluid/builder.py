@@ -213,6 +213,14 @@ class FluidBuilder:
             start += es.capacity
         idx = np.concatenate([np.zeros(0, np.int64), *added, *slots])
         domain = self._fluid_domain(np.concatenate([np.zeros(0, np.int64), *added]))
+        for k in self._fluid_emitters:  # a nozzle outside would emit where the neighbour grid is not
+            c = np.asarray(self._emitters[k].center)
+            if np.any(c < domain[0]) or np.any(c > domain[1]):
+                raise ParameterError(
+                    f"add_fluid_emitter: center {c.tolist()} lies outside the liquid's domain "
+                    f"{np.asarray(domain[0]).tolist()} .. {np.asarray(domain[1]).tolist()} "
+                    "(add_fluid(domain=...))"
+                )
         options = dict(self._fluid, domain=domain, mass=self.fluid_particle_mass())
         return dict(particles=idx, options=options)
 

@@ -38,6 +38,9 @@ class PositionBasedFluid(FluidDynamics):
         self.px = model.new_field(self, "fluid_px", float, n, (3,))  # predicted positions, by slot
         self.px2 = model.new_field(self, "fluid_px2", float, n, (3,))
         self.lam = model.new_field(self, "fluid_lambda", float, n)
+        # The boundary samples' share of each density at the substep's start, with the moving samples'
+        # own motion over the step: constant through the solve, so made once (_predict_positions).
+        self.rho_b = model.new_field(self, "fluid_rho_boundary", float, n)
 
     def _divergence_step(self, h: float, state) -> tuple[int, float]:
         return 0, 0.0  # position-based fluids have no divergence solve
@@ -65,37 +68,40 @@ class PositionBasedFluid(FluidDynamics):
 
     @ti.kernel
     def _predict_positions(self, h: float):
+        w0 = cubic_w(0.0, self.support)
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             self.px[k] = self.grid.sorted_x[k] + h * self.sv[k]
             self.kacc[k] = 0.0
-
-    @ti.kernel
-    def _constraints(self, h: float):
-        """lambda_k at the predicted positions, and the clamped errors' fixed-point sum and max."""
-        self.err_sum[None] = 0
-        self.err_max[None] = 0.0
-        w0 = cubic_w(0.0, self.support)
-        ti.loop_config(serialize=self.serial)
-        for k in range(self._live()):
-            p = self.px[k]
-            # The boundary's share of the density at the start, linearised in the particle's motion
-            # (and the moving samples' own).
-            fluid0 = w0
+            fluid = w0
             for m in range(self.nn[k]):
-                fluid0 += self.weight[k, m]
-            rho = self.rho[k] - self.mass * fluid0 + self.wall_grad[k].dot(p - self.grid.sorted_x[k])
+                fluid += self.weight[k, m]
+            rho = self.rho[k] - self.mass * fluid
             if ti.static(self.coupled):
                 for m in range(self.body_n[k]):
                     rho -= h * self.body_grad[k, m].dot(self.bodies.v[self.body_nbr[k, m]])
-            rho += self.mass * w0
+            self.rho_b[k] = rho
+
+    @ti.kernel
+    def _constraints(self, h: float):
+        """lambda_k at the predicted positions, and the clamped errors' fixed-point sum and max. The
+        pairs' m grad W at p go into the lists (`grad`, the substep start's until now: the DFSPH solves
+        and the surface tension are done with them), for _project at the same positions."""
+        self.err_sum[None] = 0
+        self.err_max[None] = 0.0
+        ti.loop_config(serialize=self.serial)
+        for k in range(self._live()):
+            p = self.px[k]
+            # The boundary's share linearised in the particle's motion.
+            rho = self.rho_b[k] + self.wall_grad[k].dot(p - self.grid.sorted_x[k])
+            rho += self.mass * cubic_w(0.0, self.support)
             g = self.wall_grad[k]
             sq = ti.cast(0.0, float)
             for m in range(self.nn[k]):
-                d = p - self.px[self.nbr[k, m]]
-                w, gr = cubic_w_grad(d, self.support)
+                w, gr = cubic_w_grad(p - self.px[self.nbr[k, m]], self.support)
                 rho += self.mass * w
                 gr *= self.mass
+                self.grad[k, m] = gr
                 g += gr
                 sq += gr.dot(gr)
             c = ti.max(rho / self.rest_density - 1.0, 0.0)
@@ -106,17 +112,16 @@ class PositionBasedFluid(FluidDynamics):
 
     @ti.kernel
     def _project(self, h: float):
-        """p_k += dp_k (Jacobi: every correction from the same lambdas); kacc sums the corrections'
-        pressure equivalent for the bodies' impulses and the report."""
+        """p_k += dp_k (Jacobi: every correction from the same lambdas, with the gradients _constraints
+        listed at these positions); kacc sums the corrections' pressure equivalent for the bodies'
+        impulses and the report."""
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
-            p, lk = self.px[k], self.lam[k]
+            lk = self.lam[k]
             dp = lk * self.wall_grad[k]
             for m in range(self.nn[k]):
-                kk = self.nbr[k, m]
-                _, gr = cubic_w_grad(p - self.px[kk], self.support)
-                dp += (lk + self.lam[kk]) * self.mass * gr
-            self.px2[k] = p + dp / self.rest_density
+                dp += (lk + self.lam[self.nbr[k, m]]) * self.grad[k, m]
+            self.px2[k] = self.px[k] + dp / self.rest_density
             # dv = dp / h = -h kappa grad (dfsph.py's form): kappa = -lambda / (rho0 h^2)
             self.kacc[k] -= lk / (self.rest_density * h * h)
         ti.loop_config(serialize=self.serial)
