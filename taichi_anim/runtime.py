@@ -33,6 +33,12 @@ GPU_CANDIDATES = ("cuda", "vulkan", "metal") if sys.platform == "darwin" else ("
 # Taichi's own CPU backend on a cloth step, so "gpu"/"auto" do not count them as a GPU.
 SOFTWARE_VULKAN = ("llvmpipe", "lavapipe", "swiftshader")
 PROBE_TIMEOUT_S = 60.0
+# Taichi's offline cache holds 100 MB by default and, past that, deletes a quarter of its files (least
+# recently used) whenever a program ends. The engine's kernels outgrow it: the test suite's take 334 MB
+# (10,500 kernels), so a run evicted what later runs compiled again, and a sweep over many sizes or
+# scenes does the same. 1 GiB holds them with room to spare (Taichi keeps the size in a signed 32-bit
+# integer); TI_OFFLINE_CACHE_MAX_SIZE_OF_FILES or init's `offline_cache_max_size_of_files` sets another.
+OFFLINE_CACHE_BYTES = 1024**3
 
 _PROBE_SCRIPT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "device_probe.py")
 
@@ -158,6 +164,8 @@ def init(
         offline_cache=offline_cache,
         log_level=ti.WARN,
     )
+    if "TI_OFFLINE_CACHE_MAX_SIZE_OF_FILES" not in os.environ:  # the user's choice stands
+        opts["offline_cache_max_size_of_files"] = OFFLINE_CACHE_BYTES
     if cpu_threads is not None:
         opts["cpu_max_num_threads"] = validate.count("cpu_threads", cpu_threads, 1)
     opts.update(taichi_options)

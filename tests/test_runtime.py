@@ -121,3 +121,20 @@ def test_compile_with_refuses_unknown_switches():
 
     with pytest.raises(ParameterError, match="fast_math"):
         runtime.compile_with(fast_math=False)
+
+
+def test_the_offline_cache_holds_a_test_suites_kernels(monkeypatch):
+    """Taichi's default cap (100 MB, then a quarter of the files deleted at every program's end) is below
+    what the engine's kernels take (the test suite's: 334 MB): init raises it unless the user chose."""
+    import taichi_anim as ta
+    from taichi.lang import impl
+    from taichi_anim import runtime
+
+    monkeypatch.delenv("TI_OFFLINE_CACHE_MAX_SIZE_OF_FILES", raising=False)
+    ta.init("cpu")
+    assert impl.current_cfg().offline_cache_max_size_of_files == runtime.OFFLINE_CACHE_BYTES > 300 * 2**20
+    ta.init("cpu", offline_cache_max_size_of_files=12345)  # an explicit option wins
+    assert impl.current_cfg().offline_cache_max_size_of_files == 12345
+    monkeypatch.setenv("TI_OFFLINE_CACHE_MAX_SIZE_OF_FILES", "54321")  # and so does Taichi's variable
+    ta.init("cpu")
+    assert impl.current_cfg().offline_cache_max_size_of_files == 54321
