@@ -126,8 +126,9 @@ def test_compile_with_refuses_unknown_switches():
 def test_the_offline_cache_holds_a_test_suites_kernels(monkeypatch):
     """Taichi's default cap (100 MB, then a quarter of the files deleted at every program's end) is below
     what the engine's kernels take (the test suite's: 334 MB): init raises it unless the user chose."""
-    import taichi_anim as ta
     from taichi.lang import impl
+
+    import taichi_anim as ta
     from taichi_anim import runtime
 
     monkeypatch.delenv("TI_OFFLINE_CACHE_MAX_SIZE_OF_FILES", raising=False)
