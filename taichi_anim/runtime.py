@@ -143,8 +143,10 @@ def init(
     float field the engine allocates. cpu_threads pins the CPU thread count (1 makes float atomics
     reproducible run to run). size_buckets: allocate the models finalised from now on in capacity
     buckets, so that another size of a scene compiles nothing new (capacity.py; None: the environment's
-    TAICHI_ANIM_SIZE_BUCKETS, off if unset). Calling it again resets Taichi: fields allocated before
-    become invalid.
+    TAICHI_ANIM_SIZE_BUCKETS, off if unset). The offline cache may hold OFFLINE_CACHE_BYTES (Taichi's
+    own cap, 100 MB, is below what the engine's kernels take) unless `offline_cache_max_size_of_files`
+    or TI_OFFLINE_CACHE_MAX_SIZE_OF_FILES says otherwise. Calling it again resets Taichi: fields
+    allocated before become invalid.
     """
     global _choice
     validate.choice("arch", arch, ARCHS)
