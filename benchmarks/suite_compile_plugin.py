@@ -1,8 +1,9 @@
 """A pytest plugin for benchmarks/suite_compile.py: the time each test spends in Taichi's compiler.
 
-Taichi compiles a kernel instance in two steps (see taichi_anim/compile_clock.py): `Kernel.materialize`
-runs its Python front end (every process, every instance), and the instance's first launch compiles the
-IR to machine code or loads it from the offline cache and generates the machine code from the cached IR;
+Taichi compiles a kernel instance in two steps, which the engine's CompileClock times per kernel name
+(taichi_anim/compile_clock.py): `Kernel.materialize` runs its Python front end (every process, every
+instance), and the instance's first launch compiles the IR to machine code or loads it from the offline
+cache and generates the machine code from the cached IR;
 a field's element read or written from Python scope compiles its SNode's reader or writer kernel at the
 first access (timed apart, under one name).
 The plugin times both per kernel name and per test, and each xdist worker writes its totals to
@@ -18,46 +19,15 @@ import time
 from pathlib import Path
 
 import pytest
-from taichi.lang.kernel_impl import Kernel
+
+from taichi_anim.compile_clock import CompileClock
 
 _front = collections.defaultdict(float)  # kernel name -> s in the front end
 _load = collections.defaultdict(float)  # kernel name -> s in first launches
 _instances = collections.Counter()  # kernel name -> instances compiled
 _per_test = collections.defaultdict(float)  # test id -> s compiling
-_fresh: dict[int, str] = {}  # id(compiled instance) -> kernel name, until its first launch
 _test = {"id": ""}
-_materialize, _launch = Kernel.materialize, Kernel.launch_kernel
 
-
-def _timed_materialize(kernel, *args, **kwargs):
-    before = len(kernel.compiled_kernels)
-    t0 = time.perf_counter()
-    try:
-        return _materialize(kernel, *args, **kwargs)
-    finally:
-        new = list(kernel.compiled_kernels.values())[before:]
-        if new:
-            name, spent = kernel.func.__qualname__, time.perf_counter() - t0
-            _front[name] += spent
-            _per_test[_test["id"]] += spent
-            _instances[name] += len(new)
-            _fresh.update((id(c), name) for c in new)
-
-
-def _timed_launch(kernel, compiled, *args, **kwargs):
-    name = _fresh.pop(id(compiled), None)
-    if name is None:
-        return _launch(kernel, compiled, *args, **kwargs)
-    t0 = time.perf_counter()
-    try:
-        return _launch(kernel, compiled, *args, **kwargs)
-    finally:
-        spent = time.perf_counter() - t0
-        _load[name] += spent
-        _per_test[_test["id"]] += spent
-
-
-Kernel.materialize, Kernel.launch_kernel = _timed_materialize, _timed_launch
 taichi_field = importlib.import_module("taichi.lang.field")  # `taichi.lang.field` the attribute is a function
 
 # A field's element read or written from Python (`f[i]`, `f[None] = v`) runs a reader or writer kernel
@@ -97,7 +67,13 @@ taichi_field.SNodeHostAccessor.__init__ = _timed_accessor_init
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     _test["id"] = item.nodeid
-    yield
+    with CompileClock() as clock:  # the engine's own clock, around the test's setup, call and teardown
+        yield
+    for name, (front, load, instances) in clock.by_kernel.items():
+        _front[name] += front
+        _load[name] += load
+        _instances[name] += instances
+    _per_test[item.nodeid] += clock.seconds or 0.0
 
 
 @pytest.hookimpl(hookwrapper=True)

@@ -18,12 +18,14 @@ import time
 
 class CompileClock:
     """`with CompileClock() as clock: ...` then clock.seconds [s] spent compiling in the block (None if
-    this Taichi cannot be measured) and clock.kernels, the kernel instances compiled."""
+    this Taichi cannot be measured), clock.kernels, the kernel instances compiled, and clock.by_kernel,
+    per kernel name [front end s, first launches s, instances]."""
 
     def __init__(self):
         self.seconds: float | None = None
         self.kernels = 0
-        self._fresh: dict[int, object] = {}  # id -> compiled instance not launched yet (kept alive)
+        self.by_kernel: dict[str, list] = {}
+        self._fresh: dict[int, tuple] = {}  # id -> (compiled instance not launched yet, kept alive; name)
         self._saved = None
 
     def __enter__(self) -> CompileClock:
@@ -45,21 +47,31 @@ class CompileClock:
             finally:
                 new = list(kernel.compiled_kernels.values())[before:]
                 if new:
-                    clock.seconds += time.perf_counter() - t0
+                    name, spent = kernel.func.__qualname__, time.perf_counter() - t0
+                    clock.seconds += spent
                     clock.kernels += len(new)
-                    clock._fresh.update((id(k), k) for k in new)
+                    clock._add(name, 0, spent, len(new))
+                    clock._fresh.update((id(k), (k, name)) for k in new)
 
         def timed_launch(kernel, compiled, *args, **kwargs):
-            if clock._fresh.pop(id(compiled), None) is None:
+            fresh = clock._fresh.pop(id(compiled), None)
+            if fresh is None:
                 return launch(kernel, compiled, *args, **kwargs)
             t0 = time.perf_counter()
             try:
                 return launch(kernel, compiled, *args, **kwargs)
             finally:
-                clock.seconds += time.perf_counter() - t0
+                spent = time.perf_counter() - t0
+                clock.seconds += spent
+                clock._add(fresh[1], 1, spent, 0)
 
         Kernel.materialize, Kernel.launch_kernel = timed_materialize, timed_launch
         return self
+
+    def _add(self, name: str, step: int, seconds: float, instances: int) -> None:
+        row = self.by_kernel.setdefault(name, [0.0, 0.0, 0])
+        row[step] += seconds
+        row[2] += instances
 
     def __exit__(self, *exc) -> bool:
         if self._saved is not None:
