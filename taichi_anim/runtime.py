@@ -18,10 +18,11 @@ import warnings
 import taichi as ti
 from taichi.lang import impl
 
-from . import capacity, frontend, validate
+from . import capacity, frontend, tensor_ops, validate
 from .errors import ParameterError
 
 frontend.install()  # Taichi's front end builds every kernel on every run; see frontend.py
+tensor_ops.install()  # and inlines its vector operations as functions at every call; see tensor_ops.py
 
 ARCHS = ("cpu", "gpu", "cuda", "vulkan", "auto")
 PRECISIONS = ("f32", "f64")
