@@ -132,7 +132,16 @@ def run_page(page: Path, folder: Path, *, standalone: bool = False) -> None:
 PAGES = [p for p in MARKDOWN if python_blocks(p.read_text())]
 
 
-@pytest.mark.parametrize("page", PAGES, ids=[_shown(p) for p in PAGES])
+# The three heaviest guide pages' examples (18-40 s each on 2 loaded cores, mostly compiling) run in the
+# slow set: the scenes they build are those of the default run's rigid, contact and integrator tests.
+SLOW_PAGES = {DOCS / "guide" / name for name in ("rigid.md", "contacts.md", "integrators.md")}
+
+
+@pytest.mark.parametrize(
+    "page",
+    [pytest.param(p, marks=pytest.mark.slow) if p in SLOW_PAGES else p for p in PAGES],
+    ids=[_shown(p) for p in PAGES],
+)
 def test_examples_run(page, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     run_page(page, tmp_path, standalone=page in STANDALONE_BLOCKS)

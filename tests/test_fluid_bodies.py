@@ -148,6 +148,7 @@ def spheres_in_tank(frames: int):
     return x[np.asarray(balls)], top, next(s for s in stepper.solvers if s.name == "fluid").stats()
 
 
+@pytest.mark.slow  # exhaustive; covered by spheres in the liquid: their momentum exchange, default
 def test_a_heavy_sphere_sinks_and_a_light_one_floats_half_in():
     """Hard spheres (particles of radius > 0) meet the liquid through boundary samples on a sphere half a
     spacing inside theirs, two ways: after 1.5 s the 2000 kg/m^3 sphere lies on the floor and the

@@ -3,6 +3,7 @@ triangles; the liquid's pressure pushes the sheet's vertices back by the same im
 exchanged exactly, and a pinned sheet holds water without letting any through."""
 
 import numpy as np
+import pytest
 
 import taichi_anim as ta
 
@@ -29,6 +30,7 @@ def test_the_liquid_and_a_cloth_exchange_momentum_exactly():
     assert v[cloth, 1].mean() < -0.5  # the sheet, at rest before, is carried along (measured -0.64 m/s)
 
 
+@pytest.mark.slow  # exhaustive; covered by cloth in the liquid: the momentum exchange, default
 def test_a_pinned_sheet_holds_water():
     """A sheet pinned at every vertex across a 16 cm box, 10 cm above its floor, under 16 cm of water:
     for a second no particle passes it (the liquid's first layer stays more than half a spacing above

@@ -201,6 +201,8 @@ for name, h, count in (("implicit_euler", 1 / 240, 3), ("symplectic_euler", 1e-5
 """
 
 
+# exhaustive; covered by thread counts: the cloth's implicit step and the blocked frames, default
+@pytest.mark.slow
 def test_large_solves_and_frames_give_the_same_bits_on_1_and_2_threads():
     """The parallel paths (block loops spread over tasks, per-substep launches) keep every reduction in a
     fixed order: 1 and 2 threads give bitwise equal states (PLATFORM: gathers, no float atomics)."""

@@ -89,6 +89,7 @@ def test_a_table_stands_on_its_four_legs():
     assert np.abs(snap.velocity[0]).max() < 1e-4
 
 
+@pytest.mark.slow  # exhaustive; covered by parts, not hulls: the ring over the peg, default
 def test_a_cap_rests_on_a_pillar_inside_it_not_on_its_hull():
     # A cap (a plate on four walls, open below) lowered over a thin pillar rests with its plate on the
     # pillar's top; its convex hull would have stopped with the walls' lower edges at the top instead.
@@ -179,6 +180,7 @@ def test_a_mesh_refuses_an_unknown_contact_model():
         ta.shapes.Mesh(v, f, contact="parts", part_vertices=3)
 
 
+@pytest.mark.slow  # exhaustive; covered by compound against compound: part by part, default
 def test_the_cascade_goes_on_between_parts_and_loses_no_contact():
     # Two tori interlocked as chain links, one hanging in the other, each as CoACD's convex parts in a
     # tree of OBBs: its walk leaves fewer exact tests than a walk over AABBs alone, fewer than every pair

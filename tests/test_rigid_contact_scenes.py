@@ -53,6 +53,7 @@ def test_two_boxes_meet_edge_on_edge():
     assert abs(heights[-1] - 2 * top) < 0.006
 
 
+@pytest.mark.slow  # exhaustive; covered by capsule cores: a capsule across another, default
 def test_a_capsule_rests_across_a_beam_narrower_than_its_core():
     # The capsule's end points hang past both sides of the beam: only its core's middle touches.
     beam = ta.shapes.Box((0.05, 0.1, 1.0))
@@ -89,6 +90,7 @@ def test_a_capsule_rests_across_another():
     assert np.abs(snaps[-1].position[1][[0, 2]]).max() < 1e-6
 
 
+@pytest.mark.slow  # exhaustive; covered by capsule cores: a capsule across another, default
 def test_capsules_whose_cores_meet_part_along_their_common_normal():
     # Cores that meet have no closest-point direction (GJK's distance is 0), and neither capsule's end
     # points touch the other. Crossed at right angles, at one height: they part across both cores (y),
@@ -111,7 +113,7 @@ def test_capsules_whose_cores_meet_part_along_their_common_normal():
     np.testing.assert_allclose(in_line[1:], 0.0, atol=1e-9)
 
 
-@pytest.mark.parametrize("gap", [0.08, 0.06])
+@pytest.mark.parametrize("gap", [pytest.param(0.08, marks=pytest.mark.slow), 0.06])  # one gap by default
 def test_a_sphere_beside_a_boxs_edge_meets_it_at_its_exact_distance(gap):
     # Centre `gap` past both faces at a box's edge: the exact distance is gap sqrt(2), the faces' planes
     # give only gap (a lower bound). At 0.08 the sphere (r = 0.1) is 13 mm clear of the edge and nothing
@@ -247,6 +249,7 @@ def test_a_plank_on_a_tilted_boxs_ridge_tips_to_the_side_of_its_centre():
     assert turned > 0.2
 
 
+@pytest.mark.slow  # exhaustive; covered by capsule against a box: a capsule across a beam's kin, default
 def test_a_capsule_through_a_walls_top_is_pushed_out_the_short_way():
     # A capsule lying across a kinematic wall, its core 5 cm below the wall's top and both ends far outside
     # it: neither end point nor the cores' closest points (they meet) give a contact. The core's depth

@@ -83,6 +83,7 @@ def test_boxes_stick_below_the_friction_angle_and_slide_at_coulombs_acceleration
         assert distance == pytest.approx(expected, rel=0.02)
 
 
+@pytest.mark.slow  # exhaustive; covered by restitution and momentum: head-on spheres, default
 def test_balls_bounce_at_e_times_their_impact_speed():
     # Dropped from 1 m above contact: impact speed sqrt(2 g h); rebound e times that. Three balls side by
     # side on one frictionless floor of restitution 0 (a contact takes the larger e of its two sides), e
@@ -121,6 +122,7 @@ def test_head_on_spheres_keep_momentum_and_part_at_e_times_their_approach():
     np.testing.assert_allclose(snap.velocity[:, 1:], 0.0, atol=1e-12)
 
 
+@pytest.mark.slow  # exhaustive; covered by stacking: the pyramid, default
 def test_a_tower_of_twenty_boxes_stands_for_ten_seconds():
     boxes = [(BOX, dict(position=(0.0, 0.1 + 0.2 * k, 0.0))) for k in range(20)]
     m, s, integ = world(boxes, plane=((0, 1, 0), 0.5, 0.5))
@@ -149,6 +151,8 @@ def test_the_cascade_counts_what_each_level_passes():
     }
 
 
+# exhaustive; covered by the OBB level: its exact reference and the cascade's counts, default
+@pytest.mark.slow
 def test_the_obb_level_rejects_crossed_rods_that_their_aabbs_pass():
     # Two thin rods turned 45 degrees about z, side by side 0.3 m apart along x: their AABBs overlap,
     # their OBBs do not. cascade_pairs (what benchmarks/rigid_cascade.py times) stops where asked, and
@@ -230,6 +234,7 @@ def test_the_obb_test_matches_an_exact_reference(pairs):
     assert 0.2 < reference.mean() < 0.8  # both outcomes well represented
 
 
+@pytest.mark.slow  # exhaustive; covered by restitution: head-on spheres, default
 def test_newtons_cradle_passes_the_momentum_to_the_last_ball():
     # Five equal balls in a row, the first arriving at 1 m/s with e = 1: it stops, the last leaves at
     # 1 m/s and the three between stay (momentum and energy through the row, Guendelman et al.'s
@@ -244,6 +249,7 @@ def test_newtons_cradle_passes_the_momentum_to_the_last_ball():
     np.testing.assert_allclose(snap.velocity[:, 0], [0.0, 0.0, 0.0, 0.0, 1.0], atol=1e-9)
 
 
+@pytest.mark.slow  # exhaustive; covered by stacking: the pyramid, default
 def test_a_heavy_on_light_stack_stands():
     # Alternating 1 kg and 100 kg boxes (1:100): ten seconds later still stacked, within 5 mm.
     cube = ta.shapes.Box((0.1, 0.1, 0.1))
@@ -287,6 +293,7 @@ def test_a_fast_ball_does_not_pass_through_a_thin_plate():
     assert snap.velocity[0][0] <= 0.0
 
 
+@pytest.mark.slow  # exhaustive; covered by boxes on triangles: test_rigid_mesh, default
 def test_a_box_rests_on_a_triangle_mesh_floor():
     # Bodies meet mesh colliders through the collider protocol like analytic ones.
     v = np.array([[-2, 0, -2], [2, 0, -2], [2, 0, 2], [-2, 0, 2]], float)

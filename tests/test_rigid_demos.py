@@ -21,6 +21,7 @@ def test_thirty_dominoes_fall_in_order_within_four_seconds():
     assert np.all(np.diff(fallen_at) > 0.0)  # one after the other, in order
 
 
+@pytest.mark.slow  # exhaustive; covered by the rigid demos' physics: the dominoes, default
 def test_the_pile_settles_in_its_bin():
     scene = make_scene("pile", layers=2)
     for _ in range(150):
@@ -35,6 +36,7 @@ def test_the_pile_settles_in_its_bin():
     assert contacts.sep.to_numpy()[:n].min() > -0.01  # nothing sunk more than 1 cm into another
 
 
+@pytest.mark.slow  # exhaustive; covered by cloth on bodies: test_rigid_coupling, default
 def test_the_cloth_tips_the_leaning_stack_over():
     # The same stack without the cloth stands; the falling cloth's weight tips its upper boxes over, and
     # no cloth vertex ends under the floor.

@@ -120,6 +120,7 @@ def test_a_mesh_refuses_a_bad_thickness():
         ta.shapes.Mesh(v, f, contact="triangles", thickness=-0.01)
 
 
+@pytest.mark.slow  # exhaustive; covered by mesh bodies: the triangle box and slab, the sliding box, default
 def test_round_shapes_rest_on_a_ring_where_its_own_surface_says():
     # A ball of radius 0.3 in a ring lying flat, and a ring hung on a horizontal peg, both rings as their
     # triangles. The ball settles on the ring's axis where the mesh's distance to its centre is its
@@ -182,6 +183,7 @@ def test_a_triangle_box_rests_on_its_corners_and_a_box_on_a_triangle_slab():
     assert len(np.unique(np.round(corners, 6), axis=0)) == 4
 
 
+@pytest.mark.slow  # exhaustive; covered by mesh bodies: the triangle box and slab, the sliding box, default
 def test_interlocked_triangle_rings_the_obb_tree_halves_the_exact_tests_and_keeps_every_contact():
     # Two tori as their triangles, one hanging in the other: the walk down the trees of OBBs gives the
     # exact test to fewer than half the pairs of triangles a walk over AABBs alone gives it to (the

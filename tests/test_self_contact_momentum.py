@@ -28,7 +28,15 @@ def thrown_sheets(friction: float, vb: float):
     return b.finalize()
 
 
-@pytest.mark.parametrize("friction, vb", [(0.0, -0.5), (0.5, -0.5), (0.0, 0.0)])
+# One case by default (friction, both sheets moving); the frictionless ones are in the slow set.
+@pytest.mark.parametrize(
+    "friction, vb",
+    [
+        pytest.param(0.0, -0.5, marks=pytest.mark.slow),
+        (0.5, -0.5),
+        pytest.param(0.0, 0.0, marks=pytest.mark.slow),
+    ],
+)
 def test_two_sheets_thrown_at_each_other_keep_their_momentum(friction, vb):
     """Pass: implicit Euler at dt = 1/120 s (up to 17 mm of approach per step against a 2 cm gap), f64,
     the linear solve converged to 1e-13 (an inexact solve alone moves momentum by 1e-3 here), 12 steps:

@@ -129,7 +129,7 @@ def buckets_reset():
     [
         pytest.param("fountain", 30, marks=pytest.mark.slow),  # 16 s; emitters' buckets: the no-kernel test
         ("cloth", 10),
-        ("spheres", 10),
+        pytest.param("spheres", 10, marks=pytest.mark.slow),  # 10 s; the cloth and mesh cases run by default
         # the sheets need 130 frames to reach the ball (34 s, loaded 2 cores): self-contact under buckets
         pytest.param("layers", 130, marks=pytest.mark.slow),
         ("mesh", 200),
