@@ -9,7 +9,7 @@ from types import MappingProxyType
 import numpy as np
 import taichi as ti
 
-from . import capacity
+from . import bulk, capacity
 from .bodies import KINDS, MODEL_PARTS
 from .collision.motion import attachment_codes
 from .runtime import data_oriented, serial_loops
@@ -237,8 +237,7 @@ class _ForceProbe:
 
     def forces(self, x, v, t: float) -> np.ndarray:
         xf, vf, ff = self.fields
-        xf.from_numpy(self.model.padded(x))
-        vf.from_numpy(self.model.padded(v))
+        bulk.fill([(xf, self.model.padded(x)), (vf, self.model.padded(v))])  # one launch (bulk.py)
         self._forces(self.model, xf, vf, ff, t)
         return ff.to_numpy()[: self.model.particle_count].astype(np.float64)
 

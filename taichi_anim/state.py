@@ -15,6 +15,22 @@ from .watchdog import NO_INDEX, bounds_compiled
 __all__ = ["ALIVE_FOREVER", "ParticleSnapshot", "State", "particle_colors"]
 
 
+# One launch instead of a Python-scope write per field: each such write runs its field's own writer
+# kernel (one per component of a vector field), which every new Taichi program compiles or loads again
+# (15-40 ms each here): fourteen per State, and a test builds several states.
+@ti.kernel
+def _clear_watch(state: ti.template(), limits: ti.template()):
+    """Clear the divergence record; with `limits`, also open the watchdog's limits to +-inf."""
+    state.nonfinite_count[None] = 0
+    state.nonfinite_step[None] = NO_INDEX
+    state.watch_particle[None] = NO_INDEX
+    state.watch_claim[None] = 0
+    state.watch_record[None] = ti.Vector([0, 0, 0])
+    if ti.static(limits):
+        inf = ti.math.inf
+        state.watch_limit[None] = ti.Vector([-inf, -inf, -inf, inf, inf, inf, inf], dt=float)
+
+
 @data_oriented
 class State(*STATE_PARTS):
     """Dynamic data of a Model: each body kind's arrays (the particles': particle_x, particle_v (N,3);
@@ -50,21 +66,16 @@ class State(*STATE_PARTS):
         self.watch_record = watch(self, "watch_record", ti.i32, (), (3,))
         self.watch_value = watch(self, "watch_value", float, ())
         self.watch_limit = watch(self, "watch_limit", float, (), (7,))
-        self.watch_limit[None] = [-math.inf] * 3 + [math.inf] * 4
         self.watch_bounds_now = None  # (lo, hi, speed) the field holds, for messages
         self.watch_version = -1
         self.watch_until = -math.inf  # [s] end of the window the field's limits were written for
         self.energy_start = None  # [J] at the first step the watchdog saw (scenes with an energy)
         self.energy_step = 0  # step of the last energy evaluation
-        self.watch_reset()
+        _clear_watch(self, True)
 
     def watch_reset(self) -> None:
         """Clear the divergence record (after a rollback)."""
-        self.nonfinite_count[None] = 0
-        self.nonfinite_step[None] = NO_INDEX
-        self.watch_particle[None] = NO_INDEX
-        self.watch_claim[None] = 0
-        self.watch_record[None] = [0, 0, 0]
+        _clear_watch(self, False)
 
     def save(self, into: "State", *, whole_trail: bool = False) -> None:
         """Copy everything a step changes into `into`, a State of the same model: every kind's arrays

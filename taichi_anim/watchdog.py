@@ -417,9 +417,7 @@ def energy_function(model):
     out = model.new_field(model, "kinetic_energy", ti.f64, ())
 
     def energy(state) -> float:
-        out[None] = 0.0
-        _kinetic_energy(model, state, out)
-        e = float(out[None])
+        e = float(_kinetic_energy(model, state, out))
         if potentials:
             x = state.positions()
             e += sum(float(t.energy(x, masses)) for t in potentials)
@@ -429,10 +427,13 @@ def energy_function(model):
 
 
 @ti.kernel
-def _kinetic_energy(model: ti.template(), state: ti.template(), out: ti.template()):
+def _kinetic_energy(model: ti.template(), state: ti.template(), out: ti.template()) -> ti.f64:
+    # cleared and returned here rather than from Python: a Python-scope access runs its own kernel
+    out[None] = 0.0
     for i in range(model.live_particles()):
         v = state.particle_v[i]
         out[None] += ti.cast(0.5 * model.mass(i) * v.norm_sqr(), ti.f64)
+    return out[None]
 
 
 def _extent(extent):

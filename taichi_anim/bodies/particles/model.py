@@ -6,7 +6,7 @@ buckets (capacity.py) its arrays hold particle_capacity rows and kernels loop to
 import numpy as np
 import taichi as ti
 
-from ... import capacity
+from ... import bulk, capacity
 from ...runtime import data_oriented, np_float
 
 
@@ -40,9 +40,8 @@ class ParticleModel:
         if self.uniform_mass is None:
             self.particle_mass = self.particle_array(self, "particle_mass")
             self.particle_inv_mass = self.particle_array(self, "particle_inv_mass")
-            self.particle_mass.from_numpy(self.padded(masses))
             inv = np.divide(1.0, masses, out=np.zeros_like(masses), where=masses > 0)
-            self.particle_inv_mass.from_numpy(self.padded(inv))
+            bulk.fill([(self.particle_mass, self.padded(masses)), (self.particle_inv_mass, self.padded(inv))])
         self.uniform_inv_mass = 1.0 / self.uniform_mass if self.uniform_mass else 0.0
         self.per_particle_mass = self.uniform_mass is None  # kernels branch on this at compile time
         radii = np.asarray(radius, dtype=np.float64) if n else np.zeros(1)

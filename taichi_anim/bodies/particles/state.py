@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
-from ... import validate
+from ... import bulk, validate
 from ...errors import ParameterError
 from ...runtime import data_oriented, np_float
 
@@ -66,17 +66,19 @@ class ParticleState:
 
     def _start_particles(self, model) -> None:
         """Fill the arrays for t = 0: the builder's particles in place, every emitter slot dead."""
-        self.particle_x.from_numpy(model.padded(model._x0))
-        self.particle_v.from_numpy(model.padded(model._v0))
+        fills = [(self.particle_x, model.padded(model._x0)), (self.particle_v, model.padded(model._v0))]
         if self.has_lifetimes:
             death = np.full(model.particle_capacity, -1.0)  # rows past the live count: dead, never freed
             death[: model._static_count] = ALIVE_FOREVER
-            self.particle_death.from_numpy(model.padded(death))
+            fills += [
+                (self.particle_death, model.padded(death)),
+                (self.particle_birth, model.padded(np.zeros(model.particle_count))),
+                (self.emit_cursor, np.zeros(model.emitter_count, np.int32)),  # a pooled field is not zero
+            ]
             dead = np.zeros(self.particle_free.shape[0] * 32, dtype=np.uint8)
             dead[model._static_count : model.particle_count] = 1
-            self.particle_free.from_numpy(np.packbits(dead, bitorder="little").view(np.uint32))
-            self.particle_birth.from_numpy(model.padded(np.zeros(model.particle_count)))
-            self.emit_cursor.from_numpy(np.zeros(model.emitter_count, np.int32))  # a pooled field is not zero
+            self.particle_free.from_numpy(np.packbits(dead, bitorder="little").view(np.uint32))  # u32 bits
+        bulk.fill(fills)  # one launch: from_numpy is a kernel per field (bulk.py)
         if self.trail_length:
             self.trail.from_numpy(model.padded(np.repeat(model._x0[:, None, :], self.trail_length, axis=1)))
 

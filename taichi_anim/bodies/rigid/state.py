@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
-from ... import validate
+from ... import bulk, validate
 from ...errors import ParameterError
 from ...runtime import data_oriented
 from .quaternion import matrix_to_quat, quat_conjugate, quat_product, quat_to_matrix
@@ -55,11 +55,9 @@ class RigidState:
             r, tr = motion.pose(0.0)
             start["x"][k] = r @ np.asarray(x0) + tr
             start["q"][k] = quat_product(matrix_to_quat(r), np.asarray(q0))
-        for name in ("x", "q", "v", "w"):
-            getattr(self, f"rigid_{name}").from_numpy(model.rigid_padded(start[name]))
         zero = model.rigid_padded(np.zeros((model.rigid_count, 3)))
-        self.rigid_force.from_numpy(zero)
-        self.rigid_torque.from_numpy(zero)
+        fills = [(getattr(self, f"rigid_{n}"), model.rigid_padded(start[n])) for n in ("x", "q", "v", "w")]
+        bulk.fill([*fills, (self.rigid_force, zero), (self.rigid_torque, zero)])  # one launch (bulk.py)
 
     def _save_rigid(self, into, whole_trail: bool) -> None:
         if self.model.rigid_count:
