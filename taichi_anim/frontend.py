@@ -138,11 +138,17 @@ def _getsourcefile(obj):
 _textwrap = SimpleNamespace(fill=functools.lru_cache(maxsize=1 << 16)(textwrap.fill), dedent=textwrap.dedent)
 
 
+def patch_allowed(switch: str, versions) -> bool:
+    """Whether a patch of Taichi's internals may be on: this Taichi is one of the `versions` it was checked
+    against, and the environment variable `switch` (set to anything but 0) does not turn it off."""
+    if os.environ.get(switch, "") not in ("", "0"):
+        return False
+    return tuple(ti.__version__) in versions
+
+
 def available() -> bool:
     """Whether this Taichi is one the patch was checked against, and it is not turned off."""
-    if os.environ.get("TAICHI_ANIM_PLAIN_FRONTEND", "") not in ("", "0"):
-        return False
-    return tuple(ti.__version__) in CHECKED_VERSIONS
+    return patch_allowed("TAICHI_ANIM_PLAIN_FRONTEND", CHECKED_VERSIONS)
 
 
 def install() -> bool:

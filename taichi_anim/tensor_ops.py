@@ -21,12 +21,11 @@ on a tensor expression, `@`, `ti.math`). It is on for the Taichi versions it was
 TAICHI_ANIM_PLAIN_MATRIX_OPS=1 turns it off.
 """
 
-import os
-
-import taichi as ti
 from taichi._lib import core as _core
 from taichi.lang import impl, matrix, ops
 from taichi.lang.expr import Expr, make_expr_group
+
+from .frontend import patch_allowed
 
 CHECKED_VERSIONS = {(1, 7, 4)}
 REPLACED = (
@@ -202,9 +201,7 @@ def matmul(mat_x, mat_y):
 
 def available() -> bool:
     """Whether this Taichi is one the replacements were checked against, and they are not turned off."""
-    if os.environ.get("TAICHI_ANIM_PLAIN_MATRIX_OPS", "") not in ("", "0"):
-        return False
-    return tuple(ti.__version__) in CHECKED_VERSIONS
+    return patch_allowed("TAICHI_ANIM_PLAIN_MATRIX_OPS", CHECKED_VERSIONS)
 
 
 def install() -> bool:

@@ -25,13 +25,15 @@ PACKAGE_DIR = Path(__file__).resolve().parent.parent / PACKAGE
 LAYERS = [
     # foundations: errors, argument checks, the Taichi runtime, the failure policy, signals
     # (capacity: the size buckets and field pool the runtime's init switches; frontend: Taichi's front end
-    # made cheaper, installed by the runtime; bulk: many fields written in one launch)
+    # made cheaper and tensor_ops: its vector operations built into the IR, both installed by the runtime;
+    # bulk: many fields written in one launch)
     (
         "errors",
         "validate",
         "rng",
         "capacity",
         "frontend",
+        "tensor_ops",
         "runtime",
         "bulk",
         "health",
