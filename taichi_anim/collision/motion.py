@@ -16,7 +16,7 @@ import numpy as np
 import taichi as ti
 from taichi.lang import impl
 
-from .. import validate
+from .. import bulk, validate
 from ..errors import ParameterError
 from ..rotations import matrix_to_quat, quat_to_matrix
 from ..runtime import data_oriented, np_float
@@ -143,7 +143,7 @@ class RigidMotion:
         if self._program is program:
             return
         self._program = program
-        k, f = self.count, np_float()
+        k = self.count
         span = np.diff(self.times) if k > 1 else np.zeros(0)
         quats = np.array([matrix_to_quat(r) for r in self.rotations])
         # Per segment (the last row unused): rotation axis and half angle in the keyframe's frame, the
@@ -163,16 +163,17 @@ class RigidMotion:
         self.seg_half_angle = ti.field(float, k)
         self.seg_omega = ti.Vector.field(3, float, k)
         self.seg_velocity = ti.Vector.field(3, float, k)
-        for field, value in (
-            (self.key_t, self.times),
-            (self.key_T, self.translations),
-            (self.key_q, quats),
-            (self.seg_axis, self.axes),
-            (self.seg_half_angle, 0.5 * self.angles),
-            (self.seg_omega, omega),
-            (self.seg_velocity, vel),
-        ):
-            field.from_numpy(np.ascontiguousarray(value).astype(f))
+        bulk.fill(  # one launch: from_numpy is a kernel per field (bulk.py)
+            [
+                (self.key_t, self.times),
+                (self.key_T, self.translations),
+                (self.key_q, quats),
+                (self.seg_axis, self.axes),
+                (self.seg_half_angle, 0.5 * self.angles),
+                (self.seg_omega, omega),
+                (self.seg_velocity, vel),
+            ]
+        )
 
     @ti.func
     def _segment(self, t):

@@ -25,7 +25,7 @@ from types import SimpleNamespace
 import numpy as np
 import taichi as ti
 
-from .. import validate
+from .. import bulk, validate
 from ..capacity import plain
 from ..errors import ParameterError
 from ..runtime import data_oriented, float_dtype, np_float
@@ -201,8 +201,13 @@ class TriangleMesh:
             raise ParameterError(f"faces: {len(f)} exceed face_capacity {self.face_capacity}")
         self.vertex_count, self.face_count = len(v), len(f)
         self.face_count_field[None] = self.face_count
-        self.vertex_x.from_numpy(_pad(v.astype(np_float()), self.vertex_capacity))
-        self.face_vertices.from_numpy(_pad(f, self.face_capacity))
+        # one launch: from_numpy is a kernel per field (bulk.py)
+        bulk.fill(
+            [
+                (self.vertex_x, _pad(v, self.vertex_capacity)),
+                (self.face_vertices, _pad(f, self.face_capacity)),
+            ]
+        )
         self._boxes(self.face_count)
         self.bvh.build(self.face_count)
 

@@ -19,6 +19,7 @@ in the Stepper's list, and the method move them with those velocities in the nex
 import numpy as np
 import taichi as ti
 
+from ... import bulk
 from ...rotations import quat_to_matrix
 from ...runtime import data_oriented, np_float
 from ..rigid.quaternion import quat_matrix
@@ -129,16 +130,19 @@ class BodySamples:
         self.x = make(self, "fluid_body_x", float, n, (3,))  # world, at the substep's start
         self.v = make(self, "fluid_body_v", float, n, (3,))
         zeros = np.zeros((len(rest), 3))
-        self.local.from_numpy(np.concatenate([local, zeros, offsets]).astype(np_float()))
-        self.owner.from_numpy(np.concatenate([owner, np.full(len(rest) + len(offsets), -1)]).astype(np.int32))
         one = np.zeros((len(offsets), 3))
         one[:, 0] = 1.0
-        self.corners.from_numpy(
-            np.concatenate([np.zeros((len(local), 3)), corners, np.repeat(sphere[:, None], 3, 1)]).astype(
-                np.int32
-            )
+        bulk.fill(  # one launch: from_numpy is a kernel per field (bulk.py)
+            [
+                (self.local, np.concatenate([local, zeros, offsets])),
+                (self.owner, np.concatenate([owner, np.full(len(rest) + len(offsets), -1)])),
+                (
+                    self.corners,
+                    np.concatenate([np.zeros((len(local), 3)), corners, np.repeat(sphere[:, None], 3, 1)]),
+                ),
+                (self.weights, np.concatenate([np.zeros((len(local), 3)), weights, one])),
+            ]
         )
-        self.weights.from_numpy(np.concatenate([np.zeros((len(local), 3)), weights, one]).astype(np_float()))
         self.impulse = make(self, "fluid_body_impulse", float, max(b, 1), (3,))
         self.moment = make(self, "fluid_body_moment", float, max(b, 1), (3,))
 
