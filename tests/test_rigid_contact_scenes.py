@@ -53,7 +53,7 @@ def test_two_boxes_meet_edge_on_edge():
     assert abs(heights[-1] - 2 * top) < 0.006
 
 
-@pytest.mark.slow  # exhaustive; covered by capsule cores: a capsule across another, default
+@pytest.mark.slow  # exhaustive; covered by a capsule across another and through a wall's top, default
 def test_a_capsule_rests_across_a_beam_narrower_than_its_core():
     # The capsule's end points hang past both sides of the beam: only its core's middle touches.
     beam = ta.shapes.Box((0.05, 0.1, 1.0))
@@ -249,7 +249,6 @@ def test_a_plank_on_a_tilted_boxs_ridge_tips_to_the_side_of_its_centre():
     assert turned > 0.2
 
 
-@pytest.mark.slow  # exhaustive; covered by capsule against a box: a capsule across a beam's kin, default
 def test_a_capsule_through_a_walls_top_is_pushed_out_the_short_way():
     # A capsule lying across a kinematic wall, its core 5 cm below the wall's top and both ends far outside
     # it: neither end point nor the cores' closest points (they meet) give a contact. The core's depth

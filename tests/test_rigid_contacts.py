@@ -293,7 +293,6 @@ def test_a_fast_ball_does_not_pass_through_a_thin_plate():
     assert snap.velocity[0][0] <= 0.0
 
 
-@pytest.mark.slow  # exhaustive; covered by boxes on triangles: test_rigid_mesh, default
 def test_a_box_rests_on_a_triangle_mesh_floor():
     # Bodies meet mesh colliders through the collider protocol like analytic ones.
     v = np.array([[-2, 0, -2], [2, 0, -2], [2, 0, 2], [-2, 0, 2]], float)

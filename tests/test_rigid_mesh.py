@@ -120,7 +120,6 @@ def test_a_mesh_refuses_a_bad_thickness():
         ta.shapes.Mesh(v, f, contact="triangles", thickness=-0.01)
 
 
-@pytest.mark.slow  # exhaustive; covered by mesh bodies: the triangle box and slab, the sliding box, default
 def test_round_shapes_rest_on_a_ring_where_its_own_surface_says():
     # A ball of radius 0.3 in a ring lying flat, and a ring hung on a horizontal peg, both rings as their
     # triangles. The ball settles on the ring's axis where the mesh's distance to its centre is its
