@@ -8,9 +8,12 @@ psi_b = rho0 V_b (eq. 5) to a fluid particle's density, and mirrors its pressure
 The layer lies half a spacing inside the solid, so that a block of liquid filled up to a wall (its first
 particles half a spacing from the surface) starts a spacing from the samples, as inside the liquid, and
 the liquid's volume ends at the wall's surface. Planes are sampled on a square grid over the liquid's
-domain; every other collider on its surface mesh (`collider.surface`, outward faces), triangle by
-triangle, each sample moved half a spacing against its face's normal. Samples of a plane that fall
-deeper inside another plane's solid (a container wall continued past its edge) are dropped."""
+domain; every other collider on its surface mesh (`collider.surface`, outward faces): the mesh is first
+moved half a spacing inside (inset_vertices), then sampled triangle by triangle, so that every sample is
+half a spacing behind each face it lies under, at edges and corners too. (Moving each face's own grid
+along its normal instead leaves the grid's rim on the neighbouring faces' planes: a box's edges were
+sampled at its surface, which held a floating plank a fifth of a spacing too high.) Samples of a plane
+that fall deeper inside another plane's solid (a container wall continued past its edge) are dropped."""
 
 from __future__ import annotations
 
@@ -66,28 +69,65 @@ def _plane(n, offset: float, lo, hi, spacing: float) -> np.ndarray:
     return origin + ga.reshape(-1, 1) * u + gb.reshape(-1, 1) * w
 
 
+def inset_vertices(v, faces, depth: float) -> np.ndarray:
+    """(V,3) [m] the vertices moved `depth` [m] inside the surface: each to the point `depth` behind the
+    plane of every face around it (a box's corner moves `depth` along each of its three axes), in the
+    least-squares sense where more than three planes meet (a curved mesh's vertex). Directions that the
+    planes fix only weakly (normals a few degrees apart) are left to their mean, and no vertex moves
+    more than 3 depth (a sharp spike)."""
+    v = np.asarray(v, dtype=np.float64)
+    around: list[list[np.ndarray]] = [[] for _ in range(len(v))]
+    for face in faces:
+        face = list(face)
+        for k in range(1, len(face) - 1):
+            corners = (face[0], face[k], face[k + 1])
+            n = np.cross(v[corners[1]] - v[corners[0]], v[corners[2]] - v[corners[0]])
+            length = np.linalg.norm(n)
+            if length > 0.0:
+                for c in corners:
+                    around[c].append(n / length)
+    out = v.copy()
+    for i, normals in enumerate(around):
+        if not normals:
+            continue
+        u, s, wt = np.linalg.svd(np.asarray(normals), full_matrices=False)
+        keep = s > 0.1 * s[0]
+        shift = wt[keep].T @ ((u[:, keep].T @ np.full(len(normals), -depth)) / s[keep])  # n . shift = -depth
+        length = np.linalg.norm(shift)
+        out[i] = v[i] + (shift if length <= 3.0 * depth else shift * (3.0 * depth / length))
+    return out
+
+
 def mesh_samples(v, faces, spacing: float) -> np.ndarray:
-    """Samples of every triangle (polygons fanned) each half a spacing behind its (outward) face: a
-    grid at most `spacing` apart along its two edges from the first corner (so the two triangles of a
-    square face continue one square grid), and its third edge sampled at most `spacing` apart."""
+    """Samples of the surface moved half a spacing inside (inset_vertices), triangle by triangle
+    (polygons fanned): a grid at most `spacing` apart along the two edges from the corner facing the
+    longest edge (so the two triangles of a rectangle continue one grid), and the longest edge sampled
+    at most `spacing` apart. Shared edges are sampled by both of their triangles (callers drop repeated
+    points)."""
+    v = inset_vertices(v, faces, 0.5 * spacing)
     out = []
     for face in faces:
         face = list(face)
         for k in range(1, len(face) - 1):
             a, b, c = v[face[0]], v[face[k]], v[face[k + 1]]
-            normal = np.cross(b - a, c - a)
-            length = np.linalg.norm(normal)
-            if length == 0.0:
+            if np.linalg.norm(np.cross(b - a, c - a)) == 0.0:
                 continue  # a degenerate triangle: its edges are sampled by its neighbours
-            nu = max(1, math.ceil(np.linalg.norm(b - a) / spacing))
-            nv = max(1, math.ceil(np.linalg.norm(c - a) / spacing))
-            nw = max(1, math.ceil(np.linalg.norm(c - b) / spacing))
+            # The grid's corner is the one facing the longest edge: a rectangle's two triangles then
+            # both grid its sides (one square grid), and the diagonal is the third edge.
+            longest = int(np.argmax([np.linalg.norm(c - b), np.linalg.norm(a - c), np.linalg.norm(b - a)]))
+            a, b, c = ((a, b, c), (b, c, a), (c, a, b))[longest]
+            nu, nv, nw = (_intervals(np.linalg.norm(e), spacing) for e in (b - a, c - a, c - b))
             i, j = np.meshgrid(np.arange(nu + 1), np.arange(nv + 1), indexing="ij")
             s, t = (i / nu).ravel(), (j / nv).ravel()
             keep = s + t <= 1.0 + 1e-9
             s, t = s[keep], t[keep]
             edge = np.arange(nw + 1) / nw  # the third edge, b to c
             s, t = np.concatenate([s, 1.0 - edge]), np.concatenate([t, edge])
-            inward = -0.5 * spacing * normal / length
-            out.append(a + s[:, None] * (b - a) + t[:, None] * (c - a) + inward)
+            out.append(a + s[:, None] * (b - a) + t[:, None] * (c - a))
     return np.concatenate(out) if out else np.zeros((0, 3))
+
+
+def _intervals(length: float, spacing: float) -> int:
+    """The fewest intervals at most `spacing` long on an edge of `length` (an edge of 7 spacings in
+    floating point, 7.000000000000001, is 7 intervals, not 8)."""
+    return max(1, math.ceil(length / spacing - 1e-9))
