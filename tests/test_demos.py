@@ -41,6 +41,7 @@ def test_demo_runs_and_exports(name, tmp_path, capsys):
         frames = manifest["timings"]["solver_frames"]["fluid"]
         assert len(frames) == 4 and all(f["steps"] >= 1 and f["density_iterations"] >= 1 for f in frames)
         assert max(f["mean_density_error"] for f in frames) <= liquid["tolerance"]
+        assert all(0.0 <= f["reached_density_error"] <= f["reached_max_density_error"] for f in frames)
     cloths = manifest["settings"]["model"]["cloths"]
     bodies = manifest["settings"]["model"].get("rigid_bodies", [])
     if bodies:  # rigid bodies export as one mesh of every body at its pose

@@ -141,6 +141,11 @@ class FluidDynamics:
         self.err_sum = f("fluid_err_sum", ti.i64, shape=())
         self.err_max = f("fluid_err_max", shape=())
         self.overflow = f("fluid_overflow", ti.i32, shape=())
+        # The density error the positions reached: measured by the neighbourhood pass at each substep's
+        # start (after the last substep's walls' guard, which the solves' predictions do not see), as
+        # the largest mean and largest single error, over the frame (0, 1) and the run (2, 3).
+        self.reached_sum = f("fluid_reached_sum", ti.i64, shape=())
+        self.reached = f("fluid_reached", dims=(4,), shape=())
         self.speed = f("fluid_speed", shape=())
         if self.surface_tension > 0.0:
             self.normal = f("fluid_normal", dims=(3,))  # surface_tension.py's n_k, by slot
@@ -151,6 +156,7 @@ class FluidDynamics:
         vec = ti.types.vector(3, float)  # made after ti.init: `float` is the chosen precision
         self._sums = ti.types.struct(n=ti.i32, bn=ti.i32, mb=ti.i32, rho=float, g=vec, sq=float, wg=vec)
         self.overflow[None] = 0
+        self.reached[None] = [0.0, 0.0, 0.0, 0.0]
         self.totals = dict(steps=0, density_iterations=0, divergence_iterations=0, unconverged_steps=0,
                            mean_error_max=0.0, max_error_max=0.0)  # fmt: skip
         self._frame: list[dict] = []
@@ -216,7 +222,9 @@ class FluidDynamics:
     def frame_stats(self) -> dict:
         """The steps since the last call, summed up for run.json's per-frame record: steps, pressure
         iterations (density and divergence), the largest mean and largest single density error after
-        the density solves, and the neighbours left out of full lists since the run started."""
+        the density solves (as they predict them), the same at the positions the steps reached
+        (`reached_...`: measured at each next substep's start, after the walls' guard), and the
+        neighbours left out of full lists since the run started."""
         steps, self._frame = self._frame, []
         if not steps:
             return {}
@@ -226,14 +234,31 @@ class FluidDynamics:
             divergence_iterations=sum(s["divergence_iterations"] for s in steps),
             mean_density_error=max(s["mean_density_error"] for s in steps),
             max_density_error=max(s["max_density_error"] for s in steps),
+            **self._reached(frame=True),
             neighbor_overflow=int(self.overflow[None]),
         )
 
+    def _reached(self, frame: bool) -> dict:
+        """The largest mean and largest single density error at the positions reached, over the steps
+        since the last frame (and starts a new frame's) or over the run."""
+        r = self.reached.to_numpy()
+        if frame:
+            self._new_frame()
+            return dict(reached_density_error=float(r[0]), reached_max_density_error=float(r[1]))
+        return dict(reached_mean_error_max=float(r[2]), reached_max_error_max=float(r[3]))
+
+    @ti.kernel
+    def _new_frame(self):
+        for _ in range(1):
+            self.reached[None][0] = 0.0
+            self.reached[None][1] = 0.0
+
     def stats(self) -> dict:
         """Totals over the run: steps, iterations, steps that reached max_iterations above the
-        tolerance, the largest mean and largest single density error after a solve, and how many
-        neighbours did not fit the lists (0 unless the liquid was compressed far beyond rest)."""
-        return dict(self.totals, neighbor_overflow=int(self.overflow[None]))
+        tolerance, the largest mean and largest single density error after a solve (predicted) and at
+        the positions reached (`reached_...`), and how many neighbours did not fit the lists (0 unless
+        the liquid was compressed far beyond rest)."""
+        return dict(self.totals, **self._reached(frame=False), neighbor_overflow=int(self.overflow[None]))
 
     # --- solves ---------------------------------------------------------------------------------
 
@@ -466,7 +491,10 @@ class FluidDynamics:
 
     @ti.kernel
     def _neighborhoods(self, state: ti.template(), model: ti.template()):
-        """Each slot's neighbour list, density, factor alpha and velocity, in one pass over the cells."""
+        """Each slot's neighbour list, density, factor alpha and velocity, in one pass over the cells;
+        the density error these positions reached."""
+        for _ in range(1):
+            self.reached_sum[None] = 0
         for k in range(self._live()):
             xi = self.grid.sorted_x[k]
             zero = ti.Vector.zero(float, 3)
@@ -486,6 +514,17 @@ class FluidDynamics:
             self.rho[k] = acc.rho
             self.alpha[k] = 1.0 / den if den > 0.0 else 0.0
             self.sv[k] = state.particle_v[model.fluid_particle[self.grid.sorted_id[k]]]
+            e = ti.max(acc.rho / self.rest_density - 1.0, 0.0)
+            ti.atomic_add(self.reached_sum[None], ti.cast(e * ERROR_SCALE + 0.5, ti.i64))
+            ti.atomic_max(self.reached[None][1], e)
+        for _ in range(1):
+            n = self._live()
+            if n > 0:
+                mean = ti.cast(self.reached_sum[None], float) / ERROR_SCALE / n
+                r = self.reached[None]
+                self.reached[None][0] = ti.max(r[0], mean)
+                self.reached[None][2] = ti.max(r[2], mean)
+                self.reached[None][3] = ti.max(r[3], r[1])
 
     @ti.kernel
     def _write_velocities(self, state: ti.template(), model: ti.template(), h: float):
