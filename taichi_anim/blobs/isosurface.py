@@ -42,6 +42,7 @@ class IsosurfaceMethod(Enum):
 
 
 DEFAULT_METHOD = IsosurfaceMethod.OPEN3D
+ORIENT_SAMPLE = 4096  # triangles that decide the whole mesh's winding (_orient)
 
 
 @dataclass
@@ -120,9 +121,12 @@ def _skimage(volume: np.ndarray, iso: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _orient(verts: np.ndarray, tris: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """`tris`, reversed as a whole if their normals mostly disagree with the outward field normals."""
+    """`tris`, reversed as a whole if their normals mostly disagree with the outward field normals. The
+    extractors wind every triangle one way, so a spread of at most ORIENT_SAMPLE of them decides (all
+    of a 58,000-triangle surface took 20 ms)."""
     if not len(tris):
         return tris
-    face = np.cross(verts[tris[:, 1]] - verts[tris[:, 0]], verts[tris[:, 2]] - verts[tris[:, 0]])
-    agree = np.einsum("ij,ij->i", face, normals[tris].sum(axis=1)).sum()
+    some = tris[:: max(1, len(tris) // ORIENT_SAMPLE)]
+    face = np.cross(verts[some[:, 1]] - verts[some[:, 0]], verts[some[:, 2]] - verts[some[:, 0]])
+    agree = np.einsum("ij,ij->i", face, normals[some].sum(axis=1)).sum()
     return tris if agree >= 0 else np.ascontiguousarray(tris[:, ::-1])
