@@ -79,6 +79,10 @@ def test_a_box_is_sampled_half_a_spacing_inside_every_face():
     assert len(lattice) == 8 * 3 * 8 - 6 * 1 * 6
     gap = np.linalg.norm(lattice[:, None, :] - x[None, :, :], axis=2).min(axis=1)
     assert gap.max() < 1e-12
+    # The same box as an STL file gives it, every triangle with corners of its own: the same samples.
+    v, f = ta.shapes.Box(tuple(half)).triangles()
+    split = mesh_samples(v[f].reshape(-1, 3), np.arange(3 * len(f)).reshape(-1, 3), d)
+    assert np.array_equal(np.unique(np.round(split / 1e-9), axis=0), np.unique(np.round(x / 1e-9), axis=0))
 
 
 @pytest.mark.parametrize("shape", ["glass", "sphere", "capsule"])

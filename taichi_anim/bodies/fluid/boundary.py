@@ -74,9 +74,13 @@ def inset_vertices(v, faces, depth: float) -> np.ndarray:
     plane of every face around it (a box's corner moves `depth` along each of its three axes), in the
     least-squares sense where more than three planes meet (a curved mesh's vertex). Directions that the
     planes fix only weakly (normals a few degrees apart) are left to their mean, and no vertex moves
-    more than 3 depth (a sharp spike)."""
+    more than 3 depth (a sharp spike). Vertices at one point are one vertex here (an STL file repeats
+    every corner for each of its triangles)."""
     v = np.asarray(v, dtype=np.float64)
-    around: list[list[np.ndarray]] = [[] for _ in range(len(v))]
+    scale = max(float(np.abs(v).max()), 1e-30) if len(v) else 1.0
+    _, weld = np.unique(np.round(v / (1e-9 * scale)), axis=0, return_inverse=True)
+    weld = weld.ravel()
+    around: list[list[np.ndarray]] = [[] for _ in range(weld.max() + 1 if len(v) else 0)]
     for face in faces:
         face = list(face)
         for k in range(1, len(face) - 1):
@@ -85,8 +89,8 @@ def inset_vertices(v, faces, depth: float) -> np.ndarray:
             length = np.linalg.norm(n)
             if length > 0.0:
                 for c in corners:
-                    around[c].append(n / length)
-    out = v.copy()
+                    around[weld[c]].append(n / length)
+    shifts = np.zeros((len(around), 3))
     for i, normals in enumerate(around):
         if not normals:
             continue
@@ -94,8 +98,8 @@ def inset_vertices(v, faces, depth: float) -> np.ndarray:
         keep = s > 0.1 * s[0]
         shift = wt[keep].T @ ((u[:, keep].T @ np.full(len(normals), -depth)) / s[keep])  # n . shift = -depth
         length = np.linalg.norm(shift)
-        out[i] = v[i] + (shift if length <= 3.0 * depth else shift * (3.0 * depth / length))
-    return out
+        shifts[i] = shift if length <= 3.0 * depth else shift * (3.0 * depth / length)
+    return v + shifts[weld]
 
 
 def mesh_samples(v, faces, spacing: float) -> np.ndarray:
