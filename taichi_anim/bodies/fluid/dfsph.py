@@ -283,13 +283,13 @@ class FluidDynamics:
             self.bodies.move(self.model, state)  # the bodies' velocities now (the samples' speeds)
         tol = self.divergence_tolerance if divergence else self.tolerance
         least = min(self.min_iterations, 1) if divergence else self.min_iterations
-        self._start(state, self.model, h, divergence)
-        mean = int(self.err_sum[None]) / ERROR_SCALE / n
+        # Each launch returns the errors' fixed-point sum: reading the field after it would be one more
+        # launch per iteration (a small liquid's frame made about 60 such reads).
+        mean = self._start(state, self.model, h, divergence) / ERROR_SCALE / n
         it = 0
         while it < self.max_iterations and (mean > tol or it < least):
-            self._iterate(h, divergence)
+            mean = self._iterate(h, divergence) / ERROR_SCALE / n
             it += 1
-            mean = int(self.err_sum[None]) / ERROR_SCALE / n
         if self.coupled:
             # The bodies take their impulses once per solve. Giving them back after every iteration
             # (the samples then moving within the solve) changed neither a floating plank's heave
@@ -350,8 +350,11 @@ class FluidDynamics:
         return n
 
     @ti.kernel
-    def _start(self, state: ti.template(), model: ti.template(), h: float, divergence: ti.template()):
-        """Warm start from a share of the last step's stiffness, then the first prediction."""
+    def _start(
+        self, state: ti.template(), model: ti.template(), h: float, divergence: ti.template()
+    ) -> ti.i64:
+        """Warm start from a share of the last step's stiffness, then the first prediction; returns the
+        errors' fixed-point sum."""
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             j = self.grid.sorted_id[k]
@@ -369,13 +372,16 @@ class FluidDynamics:
         self.err_sum[None] = 0
         self.err_max[None] = 0.0
         self._predict(h, divergence)
+        return self.err_sum[None]
 
     @ti.kernel
-    def _iterate(self, h: float, divergence: ti.template()):
+    def _iterate(self, h: float, divergence: ti.template()) -> ti.i64:
+        """One correction and the next prediction; returns the errors' fixed-point sum."""
         self._correct(h)
         self.err_sum[None] = 0
         self.err_max[None] = 0.0
         self._predict(h, divergence)
+        return self.err_sum[None]
 
     # --- gathering and scattering ----------------------------------------------------------------
 

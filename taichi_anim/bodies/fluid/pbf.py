@@ -53,14 +53,11 @@ class PositionBasedFluid(FluidDynamics):
         if self.coupled:
             self.bodies.move(self.model, state)
         self._predict_positions(h)
-        self._constraints(h)
-        mean = int(self.err_sum[None]) / ERROR_SCALE / n
+        mean = self._constraints(h) / ERROR_SCALE / n  # launches return the errors' sum (dfsph.py)
         it = 0
         while it < self.max_iterations and (mean > self.tolerance or it < self.min_iterations):
-            self._project(h)
-            self._constraints(h)
+            mean = self._iterate(h) / ERROR_SCALE / n
             it += 1
-            mean = int(self.err_sum[None]) / ERROR_SCALE / n
         self._velocities(h)
         if self.coupled:
             self._push_bodies(self.model, state, h)
@@ -83,7 +80,20 @@ class PositionBasedFluid(FluidDynamics):
             self.rho_b[k] = rho
 
     @ti.kernel
-    def _constraints(self, h: float):
+    def _constraints(self, h: float) -> ti.i64:
+        """The constraints at the predicted positions (_constraint_pass); returns the errors' sum."""
+        self._constraint_pass(h)
+        return self.err_sum[None]
+
+    @ti.kernel
+    def _iterate(self, h: float) -> ti.i64:
+        """One Jacobi projection, then the constraints at the moved positions; returns the errors' sum."""
+        self._project(h)
+        self._constraint_pass(h)
+        return self.err_sum[None]
+
+    @ti.func
+    def _constraint_pass(self, h):
         """lambda_k at the predicted positions, and the clamped errors' fixed-point sum and max. The
         pairs' m grad W at p go into the lists (`grad`, the substep start's until now: the DFSPH solves
         and the surface tension are done with them), for _project at the same positions."""
@@ -110,8 +120,8 @@ class PositionBasedFluid(FluidDynamics):
             ti.atomic_add(self.err_sum[None], ti.cast(c * ERROR_SCALE + 0.5, ti.i64))
             ti.atomic_max(self.err_max[None], c)
 
-    @ti.kernel
-    def _project(self, h: float):
+    @ti.func
+    def _project(self, h):
         """p_k += dp_k (Jacobi: every correction from the same lambdas, with the gradients _constraints
         listed at these positions); kacc sums the corrections' pressure equivalent for the bodies'
         impulses and the report."""
