@@ -56,7 +56,7 @@ class PositionBasedFluid(FluidDynamics):
         mean = self._constraints(h) / ERROR_SCALE / n  # launches return the errors' sum (dfsph.py)
         it = 0
         while it < self.max_iterations and (mean > self.tolerance or it < self.min_iterations):
-            mean = self._iterate(h) / ERROR_SCALE / n
+            mean = self._project_and_constrain(h) / ERROR_SCALE / n
             it += 1
         self._velocities(h)
         if self.coupled:
@@ -86,8 +86,9 @@ class PositionBasedFluid(FluidDynamics):
         return self.err_sum[None]
 
     @ti.kernel
-    def _iterate(self, h: float) -> ti.i64:
-        """One Jacobi projection, then the constraints at the moved positions; returns the errors' sum."""
+    def _project_and_constrain(self, h: float) -> ti.i64:
+        """One Jacobi projection, then the constraints at the moved positions; returns the errors' sum.
+        (Not named _iterate: the DFSPH solves' _iterate takes other arguments.)"""
         self._project(h)
         self._constraint_pass(h)
         return self.err_sum[None]
