@@ -44,6 +44,7 @@ from ..rigid.quaternion import quat_matrix, world_inverse_inertia
 from . import surface_tension
 from .bodies import BodySamples, sphere_particles
 from .boundary import boundary_samples
+from .report import FluidReport
 from .sph_kernel import cubic_w, cubic_w_grad, lattice_sum
 
 FLUID_NEIGHBORS = 64  # listed fluid neighbours per particle (26 at rest; a compressed splash ~45)
@@ -64,7 +65,7 @@ WARM_DENSITY, WARM_DIVERGENCE = 0.5, 0.0
 
 
 @data_oriented
-class FluidDynamics:
+class FluidDynamics(FluidReport):
     """The liquid's pressure solver (module docstring); built by the Stepper from `model.fluid`."""
 
     name = "fluid"
@@ -218,47 +219,6 @@ class FluidDynamics:
             max_step=self.max_step, max_substeps=self.max_substeps,
             boundary_particles=self.boundary_count, neighbor_search=self.grid.settings(),
         )  # fmt: skip
-
-    def frame_stats(self) -> dict:
-        """The steps since the last call, summed up for run.json's per-frame record: steps, pressure
-        iterations (density and divergence), the largest mean and largest single density error after
-        the density solves (as they predict them), the same at the positions the steps reached
-        (`reached_...`: measured at each next substep's start, after the walls' guard), and the
-        neighbours left out of full lists since the run started."""
-        steps, self._frame = self._frame, []
-        if not steps:
-            return {}
-        return dict(
-            steps=len(steps),
-            density_iterations=sum(s["density_iterations"] for s in steps),
-            divergence_iterations=sum(s["divergence_iterations"] for s in steps),
-            mean_density_error=max(s["mean_density_error"] for s in steps),
-            max_density_error=max(s["max_density_error"] for s in steps),
-            **self._reached(frame=True),
-            neighbor_overflow=int(self.overflow[None]),
-        )
-
-    def _reached(self, frame: bool) -> dict:
-        """The largest mean and largest single density error at the positions reached, over the steps
-        since the last frame (and starts a new frame's) or over the run."""
-        r = self.reached.to_numpy()
-        if frame:
-            self._new_frame()
-            return dict(reached_density_error=float(r[0]), reached_max_density_error=float(r[1]))
-        return dict(reached_mean_error_max=float(r[2]), reached_max_error_max=float(r[3]))
-
-    @ti.kernel
-    def _new_frame(self):
-        for _ in range(1):
-            self.reached[None][0] = 0.0
-            self.reached[None][1] = 0.0
-
-    def stats(self) -> dict:
-        """Totals over the run: steps, iterations, steps that reached max_iterations above the
-        tolerance, the largest mean and largest single density error after a solve (predicted) and at
-        the positions reached (`reached_...`), and how many neighbours did not fit the lists (0 unless
-        the liquid was compressed far beyond rest)."""
-        return dict(self.totals, **self._reached(frame=False), neighbor_overflow=int(self.overflow[None]))
 
     # --- solves ---------------------------------------------------------------------------------
 
