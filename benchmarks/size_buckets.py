@@ -2,7 +2,8 @@
 the memory the doubling takes.
 
 1. Run time: ms per frame of the fountain and the cloth (symplectic Euler) at three sizes each, buckets off
-   and on, each measurement a fresh process on a warm offline cache (the check: no size > 5 % slower).
+   and on, each measurement a fresh process on a warm offline cache (the check: no size > 5 % slower);
+   the other demos with a size option, and a liquid in a fixed tank (`tank`, this file's scene).
 2. Compile across processes: two sizes in one bucket, each in its own process on one offline-cache folder
    (empty at the start): the kernels the second size adds to the cache, and both processes' compiles.
 3. Compile in one process: the same two sizes one after the other (the first scene deleted and collected
@@ -41,6 +42,7 @@ SIZE_OPTION = {
     "layers": "resolution",
     "tablecloth": "resolution",
     "blobs": "particles",
+    "tank": "layers",
 }
 # Cloth sizes that are not powers of two, so the padded rows are there (48^2 -> 4096 rows, 96^2 -> 16384);
 # the flag: a membrane, bending and aerodynamics, stepped by implicit Euler with PCG (the linear solver's
@@ -55,6 +57,8 @@ RUN_SIZES = {
     "layers": (24, 33),
     "tablecloth": (30, 48),
     "blobs": (1500, 6000),
+    # A liquid (DFSPH, its walls' samples and neighbour grid) of 2,000 and 6,000 particles in one tank.
+    "tank": (10, 30),
 }
 QUICK_RUN_SIZES = {
     "fountain": (2000,),
@@ -64,6 +68,7 @@ QUICK_RUN_SIZES = {
     "layers": (12,),
     "tablecloth": (16,),
     "blobs": (500,),
+    "tank": (5,),
 }
 # Two sizes in one bucket: 3000 and 3900 particles -> 4096; 30^2 = 900 and 31^2 = 961 vertices -> 1024;
 # the flag at 36 and 39 (864 and 1014 vertices -> 1024; triangles -> 2048, hinges -> 4096).
@@ -79,6 +84,7 @@ PAIRS = {
     "layers": (14, 15),
     "tablecloth": (30, 31),
     "blobs": (1500, 1900),
+    "tank": (15, 19),  # 3000 and 3800 liquid particles -> 4096
 }
 # The spheres demo steps 240 times a frame; 24 keep a 10^5-sphere run of 30 frames to seconds.
 BUILD_OPTIONS = {"spheres": {"steps_per_frame": 24}, "layers": {"layers": 2}}
@@ -93,6 +99,7 @@ INTEGRATORS = {
     "layers": "implicit_euler",
     "tablecloth": "implicit_euler",
     "blobs": "symplectic_euler",
+    "tank": "symplectic_euler",
 }
 MODES = {"off": False, "on": True}
 RESULT_MARK = "SIZE_BUCKETS_RESULT "  # the worker's answer line (Taichi prints its banner to stdout too)
@@ -102,10 +109,30 @@ RESULT_MARK = "SIZE_BUCKETS_RESULT "  # the worker's answer line (Taichi prints 
 # the worker: one process, one mode
 
 
+def tank(*, layers: int, integrator: str):
+    """A liquid block 20 x `layers` x 10 cm at 1 cm spacing (200 particles a layer) against a corner of a
+    40 x 40 x 10 cm tank, DFSPH, frames of 1/60 s: the fluid kind at counts that keep its tank (a
+    collider's shape is a compile-time constant, and the dam_break demo's tank grows with its column)."""
+    from types import SimpleNamespace
+
+    import taichi_anim as ta
+
+    b = ta.Builder()
+    b.add_force_gravity()
+    b.add_collider_box((0.0, 0.0, 0.0), (0.4, 0.4, 0.1), restitution=0.0)
+    b.add_fluid(spacing=0.01)
+    b.add_fluid_block((0.0, 0.0, 0.0), (0.2, 0.01 * layers, 0.1))
+    model = b.finalize()
+    scene = dict(model=model, state=model.state(), integrator=ta.make_integrator(integrator), dt=1 / 60)
+    return SimpleNamespace(**scene, substeps=1)  # the liquid's solver splits each frame by its CFL
+
+
 def build(scene: str, size: int):
     from taichi_anim.scenes import SCENES
 
     options = {SIZE_OPTION[scene]: size, "integrator": INTEGRATORS[scene], **BUILD_OPTIONS.get(scene, {})}
+    if scene == "tank":
+        return tank(**options)
     return SCENES[scene].build(**options)
 
 
@@ -346,7 +373,8 @@ def write_page(args, timing: list, procs: list, single: list) -> None:
             + "; integrators "
             + ", ".join(f"{k} {v}" for k, v in INTEGRATORS.items())
             + "; spheres with steps_per_frame=24, layers with 2 sheets; blobs frames include the blob field "
-            "and its isosurface; CPU, f32",
+            "and its isosurface; tank: a liquid block at 1 cm spacing, 200 particles a layer, in a 40 x 40 x "
+            "10 cm tank (DFSPH, frames of 1/60 s split by its CFL condition); CPU, f32",
             "run time": f"ms per frame of {args.frames} frames after 1 warm-up frame, ti.sync() before each "
             f"clock read; median of {args.reps} repetition(s), each a fresh process per mode, modes "
             "alternating (off-on, on-off, ...), offline cache warmed by one run per mode and size",

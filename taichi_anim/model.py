@@ -103,7 +103,12 @@ class Model(*MODEL_PARTS):
         if self.size_buckets:  # each term's entries at its element bucket (springs: 2 per spring)
             entries = sum(capacity.bucket(t.count) * (t.entry_count // max(t.count, 1)) for t in elements)
         if self.size_buckets:  # run.json says the arrays were bucketed, and to what
-            self.settings["size_buckets"] = {"particle_capacity": self.particle_capacity}
+            rows = {"particle_capacity": self.particle_capacity}
+            if self.rigid_count:
+                rows["rigid_capacity"] = self.rigid_capacity
+            if self.fluid_count:
+                rows["fluid_capacity"] = self.fluid_capacity
+            self.settings["size_buckets"] = rows
         self.work = sized + entries  # the size that decides fused frames (Stepper.frame_mode)
         self.serial = serial_loops(sized + entries // 8)
 

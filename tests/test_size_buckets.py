@@ -19,7 +19,7 @@ from taichi_anim import capacity
 from taichi_anim.errors import ParameterError
 from taichi_anim.scenes import cloth, fountain, layers, spheres
 
-from .helpers import mesh_drop, ulp_tolerance
+from .helpers import fluid_tank, mesh_drop, ulp_tolerance
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -39,6 +39,9 @@ SIZES = {
     # Particles on a static mesh collider (its BVH, adjacency and normals): 114 and 107 vertices, 224 and
     # 210 faces (buckets 128 and 256); 12 rings: 178 vertices, 352 faces.
     "mesh": ({"rings": 8, "segments": 16}, {"rings": 8, "segments": 15}, {"rings": 12, "segments": 16}),
+    # A liquid collapsing in one tank (its walls' samples, neighbour grid, DFSPH's solves): 90 and 120
+    # particles (bucket 128); 10 layers: 150.
+    "fluid": ({"rows": 6}, {"rows": 8}, {"rows": 10}),
 }
 BUILD = {
     "fountain": {},
@@ -46,12 +49,15 @@ BUILD = {
     "spheres": {"steps_per_frame": 2},
     "layers": {"layers": 2},
     "mesh": {},
+    "fluid": {},
 }
 # What builds each kind: a demo's build(), or a test scene ("module:function", importable in the runner).
 BUILDERS = {name: f"taichi_anim.scenes.{name}:build" for name in ("fountain", "cloth", "spheres", "layers")}
 BUILDERS["mesh"] = "tests.helpers:mesh_drop"
+BUILDERS["fluid"] = "tests.helpers:fluid_tank"
 SCENES = {"fountain": fountain.build, "cloth": cloth.build, "spheres": spheres.build, "layers": layers.build}
 SCENES["mesh"] = mesh_drop
+SCENES["fluid"] = fluid_tank
 
 _RUNNER = """
 import gc, json, sys
@@ -133,13 +139,19 @@ def buckets_reset():
         # the sheets need 130 frames to reach the ball (34 s, loaded 2 cores): self-contact under buckets
         pytest.param("layers", 130, marks=pytest.mark.slow),
         ("mesh", 200),
+        ("fluid", 20),
     ],
 )
 def test_buckets_run_the_same_physics(buckets_reset, name, frames):
     """The live count read at run time instead of a constant: the same arithmetic, compiled apart, so equal
     within round-off (the cloth's PCG also stops after the same iterations)."""
-    exact, _ = _final(name, False, frames)
+    exact, exact_stepper = _final(name, False, frames)
     x0, alive0 = exact.state.positions(), exact.state.alive_mask()
+    # What the liquid reports, read now: the next ti.init drops this run's fields.
+    liquid0 = totals0 = None
+    if exact.model.fluid_count:
+        liquid0 = (exact.state.fluid_densities(), exact.state.fluid_pressures())
+        totals0 = dict(exact_stepper.solver("fluid").totals)
     n = exact.model.particle_count
     assert exact.state.particle_x.shape == (n,)
     bucketed, stepper = _final(name, True, frames)
@@ -159,6 +171,25 @@ def test_buckets_run_the_same_physics(buckets_reset, name, frames):
         assert -0.01 < gap.min() < 1e-4
         ball = model.colliders[0]
         assert ball.buckets and ball.mesh.face_capacity == capacity.bucket(ball.face_count) > ball.face_count
+    liquid = stepper.solver("fluid")
+    if liquid is not None:  # the solves ran to the same iterations; the column collapsed along the floor
+        assert model.fluid_capacity == capacity.bucket(model.fluid_count) > model.fluid_count
+        assert model.settings["size_buckets"]["fluid_capacity"] == model.fluid_capacity  # run.json's record
+        assert liquid.boundary.capacity == capacity.bucket(liquid.boundary_count) > liquid.boundary_count
+        counts = ("steps", "density_iterations", "divergence_iterations", "unconverged_steps")
+        assert {k: liquid.totals[k] for k in counts} == {k: totals0[k] for k in counts}
+        assert liquid.totals["max_error_max"] == pytest.approx(totals0["max_error_max"], rel=1e-9)
+        assert x1[:, 0].max() > 0.13  # the block's front started at 0.09 m
+        rho0, p0 = liquid0
+        # A density sums kernels of its neighbours' distances, which carry the positions' round-off: it
+        # moves by at most ~10 times that over a spacing, relatively (the cubic spline's sum of
+        # m |grad W| spacing over a full neighbourhood is a few rho0).
+        rel = 10.0 * tol / liquid.spacing
+        np.testing.assert_allclose(bucketed.state.fluid_densities(), rho0, rtol=0, atol=rel * rho0.max())
+        # A pressure sums the solves' density errors rho - rho0 (about the tolerance times rho0), each
+        # carrying the round-off of rho: its own round-off is 1 / tolerance times larger.
+        p_tol = rel * float(np.abs(p0).max()) / liquid.tolerance
+        np.testing.assert_allclose(bucketed.state.fluid_pressures(), p0, rtol=0, atol=p_tol)
     contact = stepper.solver("self-contact")
     if contact is not None:  # the sheets lie on the ball and on each other: pairs found and guarded
         assert contact.buckets and contact.tri_boxes.capacity > contact.triangle_count

@@ -36,6 +36,7 @@ import math
 import numpy as np
 import taichi as ti
 
+from ... import capacity
 from ...collision.neighbors import NeighborGrid
 from ...runtime import backend_name, data_oriented, np_float
 from ..rigid.dynamics import body_acceleration
@@ -85,10 +86,11 @@ class FluidDynamics(FluidReport):
         self.support = model.fluid_support
         self.domain = (np.asarray(domain[0], dtype=np.float64), np.asarray(domain[1], dtype=np.float64))
         self.gravity = float(np.linalg.norm(body_acceleration(model)))  # |g| of the terms acting on all
-        n = model.fluid_count
+        n = model.fluid_capacity  # rows per liquid particle: its count, or its bucket (capacity.py)
         # A small liquid's loops run serially: a parallel loop costs ~0.2 ms to start on this CPU
         # against ~0.03 ms for a serial one, more than a small liquid's work per loop (the
-        # neighbourhoods pass, the heaviest, stays parallel).
+        # neighbourhoods pass, the heaviest, stays parallel). Under buckets the bucket decides, so that
+        # every count in it compiles the same kernels.
         self.serial = backend_name() == "cpu" and n < FLUID_SERIAL_BELOW
         make = model.new_field
         grow = (self.domain[0] - self.support, self.domain[1] + self.support)
@@ -108,11 +110,14 @@ class FluidDynamics(FluidReport):
         self.walls = self.boundary_count > 0  # compile-time: kernels visit boundary samples only if any
         self.boundary = None
         if self.boundary_count:
-            self.boundary = NeighborGrid(self.boundary_count, 0.5 * self.support, domain=grow, make=make)
-            bx = make(self, "fluid_boundary_x", float, self.boundary_count, (3,))
-            bx.from_numpy(samples.astype(np_float()))
-            self.boundary.build(bx)
-            self.boundary_psi = make(self, "fluid_boundary_psi", float, self.boundary_count)
+            # Under buckets the samples' rows are a bucket too: a mesh collider of another size in its
+            # buckets (mesh_collider.py) then compiles no kernel of the liquid's either.
+            rows = capacity.bucket(self.boundary_count) if model.size_buckets else self.boundary_count
+            self.boundary = NeighborGrid(rows, 0.5 * self.support, domain=grow, make=make)
+            bx = make(self, "fluid_boundary_x", float, rows, (3,))
+            bx.from_numpy(capacity.padded(samples, rows, np_float()))
+            self.boundary.build(bx, self.boundary_count)
+            self.boundary_psi = make(self, "fluid_boundary_psi", float, rows)
             self._volumes(self.boundary, self.boundary_psi, False)
         # Rigid bodies and cloth in the liquid: samples on their surfaces, moving with them, and a grid
         # over them built every substep (bodies.py).
@@ -303,8 +308,8 @@ class FluidDynamics(FluidReport):
     @ti.func
     def _live(self):
         """The slots the solves run over: the live particles (the grid's count) with nozzles, else all
-        (a compile-time constant)."""
-        n = self.model.fluid_count
+        (model.live_fluid(): a compile-time constant with exact sizes)."""
+        n = self.model.live_fluid()
         if ti.static(self.emitted):
             n = self.grid.size[None]
         return n
@@ -349,13 +354,13 @@ class FluidDynamics(FluidReport):
     def _max_speed(self, state: ti.template(), model: ti.template()):
         self.speed[None] = 0.0
         ti.loop_config(serialize=self.serial)
-        for j in range(model.fluid_count):  # unborn nozzle slots rest: their speed is 0
+        for j in range(model.live_fluid()):  # unborn nozzle slots rest: their speed is 0
             ti.atomic_max(self.speed[None], state.particle_v[model.fluid_particle[j]].norm())
 
     @ti.kernel
     def _gather_positions(self, state: ti.template(), model: ti.template()):
         ti.loop_config(serialize=self.serial)
-        for j in range(model.fluid_count):
+        for j in range(model.live_fluid()):
             p = model.fluid_particle[j]
             self.cx[j] = state.particle_x[p]
             if ti.static(self.emitted):
@@ -568,7 +573,7 @@ class FluidDynamics(FluidReport):
         """psi_b = share rho0 / sum_b' W_bb' over the samples of `grid` (Akinci et al. 2012, eq. 4-5,
         scaled as the walls' comment in __init__ says), into psi by slot (the walls, read by slot) or by
         sample (the bodies, whose grid is rebuilt every substep)."""
-        for b in range(grid.capacity):
+        for b in range(grid.size[None]):
             acc = ti.cast(0.0, float)
             self._near(grid, b, grid.sorted_x[b], self._add_w, acc)
             value = self.layer_share * self.rest_density / (acc + cubic_w(0.0, self.support))

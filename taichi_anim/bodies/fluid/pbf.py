@@ -34,7 +34,7 @@ class PositionBasedFluid(FluidDynamics):
 
     def __init__(self, model, **options):
         super().__init__(model, **options)
-        n = model.fluid_count
+        n = model.fluid_capacity
         self.px = model.new_field(self, "fluid_px", float, n, (3,))  # predicted positions, by slot
         self.px2 = model.new_field(self, "fluid_px2", float, n, (3,))
         self.lam = model.new_field(self, "fluid_lambda", float, n)

@@ -12,13 +12,14 @@ class FluidState:
     """State methods of the fluid kind (the State inherits them), per fluid particle in the order of
     model.fluid_particles (None without liquid): fluid_density (F,) [kg/m^3] and fluid_pressure (F,)
     [Pa] at the start of the last step; fluid_kappa (F,) and fluid_kappa_v (F,) the density and
-    divergence solves' last stiffness times h^2 and h (their warm starts)."""
+    divergence solves' last stiffness times h^2 and h (their warm starts). Each holds
+    model.fluid_capacity rows (a bucket's under capacity buckets): the accessors return the first F."""
 
     def _init_fluid(self, model) -> None:
         self.fluid_density = self.fluid_pressure = self.fluid_kappa = self.fluid_kappa_v = None
         if not model.fluid_count:
             return
-        n = model.fluid_count
+        n = model.fluid_capacity
         for name in ("fluid_density", "fluid_pressure", "fluid_kappa", "fluid_kappa_v"):
             setattr(self, name, model.new_field(self, name, float, n))
 
@@ -35,7 +36,7 @@ class FluidState:
 
     @ti.kernel
     def _copy_fluid(self, model: ti.template(), src: ti.template(), dst: ti.template()):
-        for j in range(model.fluid_count):
+        for j in range(model.live_fluid()):
             dst.fluid_density[j] = src.fluid_density[j]
             dst.fluid_pressure[j] = src.fluid_pressure[j]
             dst.fluid_kappa[j] = src.fluid_kappa[j]
