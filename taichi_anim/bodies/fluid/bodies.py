@@ -122,6 +122,7 @@ class BodySamples:
         self._local = np.concatenate([local, rest, centres + offsets])
         b = model.rigid_count
         self._group = np.concatenate([owner, np.full(len(rest), b), b + 1 + number]).astype(np.int64)
+        self._make = make  # the model's pool under capacity buckets (apart() takes a field from it too)
         self.local = make(self, "fluid_body_local", float, n, (3,))
         self.owner = make(self, "fluid_body_owner", ti.i32, n)
         self.corners = make(self, "fluid_body_corners", ti.i32, n, (3,))
@@ -154,7 +155,8 @@ class BodySamples:
         step = 2.0 * extent + 2.0 * reach
         x = self._local.copy()
         x[:, 0] += step * self._group
-        field = ti.Vector.field(3, float, self.count)
+        # From the pool: a new field would compile the grid's build again for the next scene in a process.
+        field = self._make(self, "fluid_body_apart", float, self.count, (3,))
         field.from_numpy(x.astype(np_float()))
         return field, x.min(axis=0) - reach, x.max(axis=0) + reach
 
