@@ -66,7 +66,7 @@ def settled_column(d=0.02, width=0.16, height=0.32, frames=72, method="dfsph", *
             ps.append(state.fluid_pressures())
     return dict(x=np.mean(xs, axis=0), p=np.mean(ps, axis=0), tops=np.array(tops), errors=np.array(errors),
                 reached=np.array(reached), rho=state.fluid_densities(), stats=fluid.stats(), spacing=d,
-                width=width)  # fmt: skip
+                width=width, method=method)  # fmt: skip
 
 
 @pytest.fixture(scope="module", params=["dfsph", "pbf"])
@@ -76,20 +76,30 @@ def column(request):
     return settled_column(method=request.param)
 
 
+# The slope's error is not one number but a spread: the settled column still sways, and starts moved by
+# 1e-10 m (5e-9 spacings, normal per coordinate) read, over 0.7-1.2 s, DFSPH +1.5 (this start), +4.0,
+# +5.0, +5.0, +6.1, +7.3, +3.5, +2.5, +4.7, +3.9 % (mean +4.4 %), PBF -0.4 (this start), +0.8, -2.4, 0.0,
+# -0.2, -0.7, -1.1, -2.0, -0.9, +2.2 % (mean -0.5 %). Round-off alone moves it as much: this start
+# compiled without Taichi's advanced optimisation read DFSPH +8.1 %. So each method's bound is its
+# largest error there with a margin, not this start's figure.
+SLOPE_TOLERANCE = {"dfsph": 0.10, "pbf": 0.04}
+
+
 def test_settled_column_pressure_grows_as_rho_g_depth(column):
     """Hydrostatics, dp/dy = -rho0 g: the slope of the particles' pressure against height (each
-    averaged over 0.7-1.2 s), away from the walls and the free surface, within 3 %. Measured +1.5 %
-    (DFSPH) and +0.3 % (PBF) in f64; the same column averaged over 1.9-2.4 s read +4.3 % and -1.0 %:
-    the settled liquid still sways, and SPH's pressure gradient on a settled (not lattice)
-    arrangement carries an error of this size (the symmetric gradient's sum_j m (p_i + p_j) grad W_ij
-    does not vanish for constant p off a lattice), which a tighter solver tolerance does not shrink (at
-    1e-4 instead of 5e-4: +10 % and +3 %). DFSPH's warm start applied to every particle, not only those
-    headed into compression, read +4.5 %."""
+    averaged over 0.7-1.2 s), away from the walls and the free surface, within SLOPE_TOLERANCE (above):
+    DFSPH's pressure is about 4 % steep, PBF's within a few percent either way. SPH's pressure gradient
+    on a settled (not lattice) arrangement carries an error of this size (the symmetric gradient's
+    sum_j m (p_i + p_j) grad W_ij does not vanish for constant p off a lattice), which a tighter solver
+    tolerance does not shrink (at 1e-4 instead of 5e-4 this start read +10 % and +3 %). Neither
+    DFSPH's warm start nor its divergence solve's neighbour gate is the cause: without the warm start
+    8 moved starts read +2.9 to +6.4 % (mean +4.2 %), with the divergence solve on every particle +2.9
+    to +7.1 % (mean +4.9 %)."""
     x, p, d, half = column["x"], column["p"], column["spacing"], 0.5 * column["width"]
     inner = np.all(np.abs(x[:, [0, 2]] - half) < half - 2 * d, axis=1)
     inner &= (x[:, 1] > 2 * d) & (x[:, 1] < column["tops"][-1] - 3 * d)
     slope, _ = np.polyfit(x[inner, 1], p[inner], 1)
-    assert slope == pytest.approx(-RHO * G, rel=0.03)
+    assert slope == pytest.approx(-RHO * G, rel=SLOPE_TOLERANCE[column["method"]])
     assert (p >= 0.0).all()  # the density solve only ever pushes apart
 
 
