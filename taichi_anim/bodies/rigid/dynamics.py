@@ -106,8 +106,10 @@ class RigidDynamics:
         self.scheme = scheme
         self.method_name = method.name
         self.gravity = body_acceleration(model)
-        # The last body found non-finite (-1: none), written by the stepping kernels, read by check().
-        self._bad = ti.field(ti.i32, shape=())
+        # The last body found non-finite (-1: none), written by the stepping kernels, read by check(). From
+        # the model's pool under buckets: a new field would compile the contact step again for the next
+        # scene in a process.
+        self._bad = model.new_field(self, "rigid_bad", ti.i32, ())
         self._bad[None] = -1
         self.contact_options = dict(contacts or {})
         self.contacts = None
