@@ -285,9 +285,19 @@ def compile_with(**switches):
 
 def _switch_compiling_launches(primal, switches: dict) -> None:
     """Make the Taichi Kernel `primal` compile each of its instances with `switches` set."""
-    # ids of the instances already compiled. After a ti.init an id may come back for a new instance,
-    # which would then compile without the switches: slower to compile, never a different result.
+    # ids of the instances compiled in this program. Forgotten when Taichi resets the kernel (ti.init,
+    # ti.reset drop its instances): a new instance may then get an old one's id, and it compiled without
+    # the switches. The switches change the bits (the integrator's step with Taichi's CFG passes moved a
+    # 1,024-sphere pile by 1e-4 m in 100 steps), so a run in a process that had run others drifted from
+    # the same run alone, as two tests saw under the full suite.
     compiled: set[int] = set()
+    reset = primal.reset
+
+    def forget_and_reset():
+        compiled.clear()
+        reset()
+
+    primal.reset = forget_and_reset  # impl.reset() calls it on every kernel, from ti.init and ti.reset
 
     def launch_kernel(t_kernel, *args):
         # Looked up on the class at each call, so a wrapper installed there (CompileClock) still runs.

@@ -115,6 +115,51 @@ def test_compile_with_sets_the_switch_for_that_kernel_only(monkeypatch, fast):
     assert impl.current_cfg().cfg_optimization == before
 
 
+def test_compile_with_switches_each_new_programs_instance_even_on_a_reused_id(monkeypatch):
+    """After ta.init the kernel's new instance compiles with the switch off again, even when it gets the
+    id an instance of the last program had (forced here: every id the same). Under the full suite a reused
+    id once compiled the integrator's step with Taichi's CFG passes, which changed a sphere pile's bits."""
+    import taichi as ti
+    from taichi.lang import impl
+    from taichi.lang.kernel_impl import Kernel
+
+    import taichi_anim as ta
+    from taichi_anim import runtime
+
+    seen: list[bool] = []
+    launch = Kernel.launch_kernel
+
+    def record(kernel, *args, **kwargs):
+        if kernel.func.__name__ == "switched":
+            seen.append(impl.current_cfg().cfg_optimization)
+        return launch(kernel, *args, **kwargs)
+
+    monkeypatch.setattr(Kernel, "launch_kernel", record)
+    monkeypatch.setattr(runtime, "id", lambda obj: 7, raising=False)  # the module's lookup of id()
+
+    @runtime.data_oriented
+    class Sums:
+        def __init__(self):
+            self.out = ti.field(ti.i32, ())
+
+        @runtime.compile_with(cfg_optimization=False)
+        @ti.kernel
+        def switched(self, n: ti.i32):
+            for i in range(n):
+                ti.atomic_add(self.out[None], i)
+
+    settings = []
+    for _ in range(2):
+        ta.init("cpu")
+        settings.append(impl.current_cfg().cfg_optimization)
+        sums = Sums()
+        sums.switched(10)
+        sums.switched(10)
+        assert sums.out[None] == 90
+    assert settings == [True, True]  # the program's own setting, which only the compiling launch overrides
+    assert seen == [False, True, False, True]
+
+
 def test_compile_with_refuses_unknown_switches():
     from taichi_anim import runtime
     from taichi_anim.errors import ParameterError

@@ -342,11 +342,7 @@ def test_near_lists_and_the_cells_agree(monkeypatch):
     deep[1::2] = x[0::2] + [0.3 * r, 0.0, 0.0]  # sphere pairs 0.3 r apart: overlaps of 1.7 r
 
     def result(start, use_lists):
-        # One thread: on two, one full run of the suite (under xdist, 2026-11-29) saw spheres up to 6 cm
-        # apart between the two runs, which ten later runs on two threads did not reproduce. The
-        # determinism across thread counts that the module promises is
-        # test_mixed_spheres_same_result_on_one_and_two_threads's to hold; that divergence is an open defect.
-        ta.init("cpu", precision="f64", cpu_threads=1)
+        ta.init("cpu", precision="f64")
         monkeypatch.setattr(ContactSpheres, "use_near_lists", use_lists)
         model, state = spheres(
             start, v, radius=r, gravity=True, box=box, neighbor_search="grid", iterations=4
