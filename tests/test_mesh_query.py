@@ -433,6 +433,27 @@ def test_winding_number_of_a_closed_sphere():
     assert 0.1 < hole[0] < 0.9
 
 
+def test_inside_closed_mesh_sums_in_numpy_below_the_bound_and_in_a_kernel_above(monkeypatch):
+    """A builder's one-off inside test compiles no kernel while points x faces stay under the bound, and
+    both ways give the sphere's inside exactly (points clear of the faceted surface)."""
+    from taichi_anim.compile_clock import CompileClock
+    from taichi_anim.spatial import mesh_query
+
+    rng = np.random.default_rng(27)
+    v, f = icosphere(2)
+    p = rng.uniform(-1.5, 1.5, (400, 3))
+    r = np.linalg.norm(p, axis=1)
+    p = p[(r < 0.75) | (r > 1.05)]
+    want = np.linalg.norm(p, axis=1) < 0.75
+    assert len(p) * len(f) <= mesh_query.NUMPY_WINDING_PAIRS
+    for bound, compiles in ((mesh_query.NUMPY_WINDING_PAIRS, False), (0, True)):
+        monkeypatch.setattr(mesh_query, "NUMPY_WINDING_PAIRS", bound)
+        with CompileClock() as clock:
+            got = mesh_query.inside_closed_mesh(v, f, p)
+        np.testing.assert_array_equal(got, want)
+        assert (clock.kernels > 0) == compiles
+
+
 def test_f32_parallel_icosphere():
     ta.init("cpu", precision="f32")
     rng = np.random.default_rng(26)

@@ -43,6 +43,7 @@ from .mesh_check import MeshReport, mesh_report, triangle_pairs_intersect
 from .mesh_query import (
     TriangleMesh,
     check_mesh,
+    inside_closed_mesh,
     triangle_box_overlap,
     triangle_solid_angle,
     winding_number_np,
@@ -68,6 +69,7 @@ __all__ = [
     "triangle_box_overlap",
     "triangle_solid_angle",
     "winding_number_np",
+    "inside_closed_mesh",
     "Octree",
     "TriGrid",
     "morton3",

@@ -126,6 +126,24 @@ def winding_number_np(vertices, faces, points) -> np.ndarray:
     return out
 
 
+# Up to this many point-face pairs, `inside_closed_mesh` sums in NumPy (160-190 ns a pair on the 2-core
+# Xeon: 0.19 s at the bound); past it, TriangleMesh's kernel (about 10 ns a pair, after compiling its
+# kernels: 0.65 s with an empty offline cache, 0.21 s warm, for 8.6e5 pairs). A builder's one-off fill
+# is usually far below it: the pour demo's glass, 4.7e4 pairs, 13 ms.
+NUMPY_WINDING_PAIRS = 1_000_000
+
+
+def inside_closed_mesh(vertices, faces, points) -> np.ndarray:
+    """Whether each point (P, 3) [m] is inside the closed mesh (V, 3) [m], (F, 3) int (generalized winding
+    number >= 1/2), (P,) bool: in NumPy up to NUMPY_WINDING_PAIRS point-face pairs, so that a one-off
+    query compiles no kernel, else with TriangleMesh's kernel."""
+    v, f = check_mesh(vertices, faces)
+    p = _points("points", points)
+    if len(p) * len(f) <= NUMPY_WINDING_PAIRS:
+        return winding_number_np(v, f, p) >= 0.5
+    return TriangleMesh(v, f).inside(p)
+
+
 def check_mesh(vertices, faces, *, name: str = "mesh") -> tuple[np.ndarray, np.ndarray]:
     """Checked copies (V, 3) float64 [m] and (F, 3) int32 of a triangle mesh for queries; single
     degenerate (zero-area, needle) triangles are allowed, a mesh of nothing else is not.

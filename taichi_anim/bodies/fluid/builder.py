@@ -17,7 +17,7 @@ from ...errors import ParameterError
 from ...geometry import load_mesh
 from ...particles.emitters import EmitterSettings, EmitterShape, disc_lattice
 from ...shapes import _check_closed
-from ...spatial.mesh_query import TriangleMesh, check_mesh
+from ...spatial.mesh_query import check_mesh, inside_closed_mesh
 from ..particles.state import ALIVE_FOREVER
 from .sph_kernel import lattice_sum
 
@@ -134,7 +134,7 @@ class FluidBuilder:
         start = lo + 0.5 * ((hi - lo) - (counts - 1) * d)
         axes = [start[a] + d * np.arange(counts[a]) for a in range(3)]
         x = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-        x = x[TriangleMesh(v, f).inside(x)]
+        x = x[inside_closed_mesh(v, f, x)]  # NumPy for a small mesh and lattice: no kernel to compile
         if not len(x):
             raise ParameterError(f"add_fluid_mesh: the mesh holds no lattice point of spacing {d}")
         return self.add_fluid_particles(x, np.broadcast_to(validate.vec3("velocity", velocity), x.shape))
