@@ -63,9 +63,16 @@ def test_every_visited_position_is_taichis_own_text():
     finally:
         frontend._Position.__init__ = init
     assert len(seen) > 100
+    texts = [frontend._position_text(ctx, node) for ctx, node in seen]
+    # Taichi's own function with Taichi's own TextWrapper (the patch memoises its wraps)
+    from taichi.lang.ast import ast_transformer_utils as utils
+
     original = frontend._originals["get_pos_info"]
-    for ctx, node in seen:
-        assert frontend._position_text(ctx, node) == original(ctx, node)
+    utils.TextWrapper = frontend._originals["text_wrapper"]
+    try:
+        assert texts == [original(ctx, node) for ctx, node in seen]
+    finally:
+        utils.TextWrapper = frontend._MemoTextWrapper
 
 
 def _error_message() -> str:
