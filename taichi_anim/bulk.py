@@ -6,6 +6,8 @@ runs. A model of rigid bodies fills some forty fields at `finalize()`: 2.7 s of 
 first build, 0.7 s of every later one. `fill` writes them all with one kernel over the fields' tuple,
 the same values (the arrays are converted to each field's type first, as from_numpy wants them)."""
 
+import contextlib
+
 import numpy as np
 import taichi as ti
 from taichi.lang.matrix import MatrixField
@@ -69,13 +71,31 @@ def _loops(lengths: list[int]) -> tuple:
     )
 
 
+_collecting: list | None = None  # the entries of the open batch() (None: none open)
+
+
+@contextlib.contextmanager
+def batch():
+    """Inside it, fill() only checks and collects its arrays; leaving it writes them all in one launch
+    (Model.state: every kind's start is one kernel, not one per kind and per field). Nothing inside may
+    read a field it fills. A batch opened inside another joins it; one left by an error writes nothing."""
+    global _collecting
+    if _collecting is not None:
+        yield
+        return
+    _collecting = entries = []
+    try:
+        yield
+    finally:
+        _collecting = None
+    _launch(entries)
+
+
 def fill(pairs) -> None:
     """Write each array into its field, [(field, array)]: one-dimensional fields of scalars, vectors or
-    matrices of i32 or the program's float, each array of the field's full shape. One launch for all."""
-    pairs = list(pairs)
-    if not pairs:
-        return
-    chunks, used, layout = {False: [], True: []}, {False: 0, True: 0}, []
+    matrices of i32 or the program's float, each array of the field's full shape. One launch for all (or
+    for all of the open batch())."""
+    entries = []
     for field, array in pairs:
         is_int = field.dtype == ti.i32
         shape = _element_shape(field)
@@ -84,10 +104,22 @@ def fill(pairs) -> None:
             raise ValueError(
                 f"bulk.fill: an array of shape {np.shape(array)} for a field of {field.shape} x {shape}"
             )
+        entries.append((field, flat, is_int, shape))
+    if _collecting is not None:
+        _collecting.extend(entries)
+    else:
+        _launch(entries)
+
+
+def _launch(entries) -> None:
+    if not entries:
+        return
+    chunks, used, layout = {False: [], True: []}, {False: 0, True: 0}, []
+    for _, flat, is_int, shape in entries:
         layout.append((used[is_int], is_int, shape))
         chunks[is_int].append(flat)
         used[is_int] += flat.size
     floats = np.concatenate(chunks[False]) if chunks[False] else np.zeros(1, np_float())
     ints = np.concatenate(chunks[True]) if chunks[True] else np.zeros(1, np.int32)
-    fields = tuple(f for f, _ in pairs)
+    fields = tuple(e[0] for e in entries)
     _fill_kernel(fields, tuple(layout), _loops([f.shape[0] for f in fields]), floats, ints)

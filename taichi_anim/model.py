@@ -123,8 +123,9 @@ class Model(*MODEL_PARTS):
         """A fresh State at t = 0: every kind's start (the builder's particles in place, every emitter
         slot dead)."""
         s = State(self)
-        for kind in KINDS:
-            kind.start_state(s, self)
+        with bulk.batch():  # every kind's start in one launch (bulk.py)
+            for kind in KINDS:
+                kind.start_state(s, self)
         return s
 
     def prepare_colliders(self, t: float, h: float) -> None:

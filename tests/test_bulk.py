@@ -59,3 +59,46 @@ def test_fields_of_one_length_share_loops_and_hold_what_from_numpy_writes():
     bulk.fill(pairs)
     for (field, _), a in zip(pairs, arrays, strict=True):
         np.testing.assert_array_equal(field.to_numpy(), a)
+
+
+def test_a_batch_writes_everything_in_one_launch_on_leaving(monkeypatch):
+    """Fills inside a batch (a nested one joins it) write nothing until the outer one is left, then all
+    in one launch; a batch left by an error writes nothing."""
+    launches = []
+    launch = bulk._launch
+    monkeypatch.setattr(bulk, "_launch", lambda entries: (launches.append(len(entries)), launch(entries)))
+    a, b = capacity.make(float, (3,), ()), capacity.make(ti.i32, (2,), (3,))
+    with bulk.batch():
+        bulk.fill([(a, [1.0, 2.0, 3.0])])
+        with bulk.batch():
+            bulk.fill([(b, np.arange(6).reshape(2, 3))])
+        assert launches == [] and a.to_numpy().tolist() == [0.0, 0.0, 0.0]
+    assert launches == [2]
+    assert a.to_numpy().tolist() == [1.0, 2.0, 3.0] and b.to_numpy().tolist() == [[0, 1, 2], [3, 4, 5]]
+    with pytest.raises(RuntimeError, match="stop"), bulk.batch():
+        bulk.fill([(a, [7.0, 7.0, 7.0])])
+        raise RuntimeError("stop")
+    assert launches == [2] and a.to_numpy().tolist() == [1.0, 2.0, 3.0]
+
+
+def test_a_state_of_three_kinds_starts_in_one_launch(monkeypatch):
+    """Model.state(): the particles', the rigid bodies' and the liquid's starts are one fill launch, and
+    each holds its start (the liquid at rest density and zero pressure, the box where it was put)."""
+    import taichi_anim as ta
+
+    b = ta.Builder()
+    b.add_force_gravity()
+    b.add_collider_box((0.0, 0.0, 0.0), (0.2, 0.2, 0.06), restitution=0.0)
+    b.add_fluid(spacing=0.02)
+    b.add_fluid_block((0.0, 0.0, 0.0), (0.1, 0.04, 0.06))
+    b.add_rigid_body(ta.shapes.Box((0.02, 0.02, 0.02)), density=500.0, position=(0.15, 0.1, 0.03))
+    model = b.finalize()
+    launches = []
+    launch = bulk._launch
+    monkeypatch.setattr(bulk, "_launch", lambda entries: (launches.append(len(entries)), launch(entries)))
+    state = model.state()
+    assert len(launches) == 1 and launches[0] >= 12  # particles 2, rigid bodies 6, liquid 4
+    np.testing.assert_array_equal(state.fluid_densities(), np.full(model.fluid_count, model.fluid_density))
+    np.testing.assert_array_equal(state.fluid_pressures(), np.zeros(model.fluid_count))
+    np.testing.assert_allclose(state.rigid_x.to_numpy()[0], [0.15, 0.1, 0.03], atol=1e-12)
+    np.testing.assert_array_equal(state.rigid_v.to_numpy()[0], [0.0, 0.0, 0.0])

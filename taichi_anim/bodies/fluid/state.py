@@ -4,6 +4,7 @@ solves' warm starts) and reports (each particle's density and pressure at its la
 import numpy as np
 import taichi as ti
 
+from ... import bulk
 from ...runtime import data_oriented
 
 
@@ -26,9 +27,10 @@ class FluidState:
     def _start_fluid(self, model) -> None:
         if not model.fluid_count:
             return
-        self.fluid_density.fill(model.fluid_density)
-        for f in (self.fluid_pressure, self.fluid_kappa, self.fluid_kappa_v):
-            f.fill(0.0)
+        n = model.fluid_capacity  # every row: a pooled field holds what its last owner left
+        zero = np.zeros(n)
+        bulk.fill([(self.fluid_density, np.full(n, model.fluid_density)), (self.fluid_pressure, zero),
+                   (self.fluid_kappa, zero), (self.fluid_kappa_v, zero)])  # fmt: skip
 
     def _save_fluid(self, into, whole_trail: bool) -> None:
         if self.model.fluid_count:
