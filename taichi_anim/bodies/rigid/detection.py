@@ -429,7 +429,10 @@ class ContactDetection(BroadPhase, ManifoldReduction):
             self.rot[i] = r
             inv = model.rigid_inv_moments[i]
             self.inv_inertia[i] = world_inverse_inertia(r, inv)
-        self._sweep(model, state, h)  # broad_phase.py: the pairs whose spheres may meet
+        # Room for one body (rigid_capacity 1: a scene with one body, as the pour demo's box) leaves no
+        # pair to search: the sweep and the pairs' exact tests, most of this kernel, are not compiled.
+        if ti.static(model.rigid_capacity > 1):
+            self._sweep(model, state, h)  # broad_phase.py: the pairs whose spheres may meet
         # pairs with a dynamic body, all of them counted (the sweep leaves out what cannot meet)
         fixed = 0
         ti.loop_config(serialize=True)
@@ -444,24 +447,25 @@ class ContactDetection(BroadPhase, ManifoldReduction):
         for a in range(model.live_rigid()):
             xa, ra = state.rigid_x[a], self.rot[a]
             reach_a = self._reach(model, state, a, h)
-            count, first = self._partners(model, a)
-            for k in range(count):
-                b = self._partner(a, first, k)
-                if model.rigid_inv_mass[a] == 0.0 and model.rigid_inv_mass[b] == 0.0:
-                    continue
-                level, margin = self._cascade(model, state, a, xa, ra, reach_a, b, h, 3, False)
-                # counted in registers, written once below: a loop of global adds per pair (one per
-                # level reached) made the 1000-box bin's step 1.4 ms longer (half a million pairs)
-                if level >= 1:
-                    spheres += 1
-                    if level >= 2:
-                        aabbs += 1
-                        if level == 3:
-                            obbs += 1
-                            near, exact, touched = self._geoms(model, state, a, b, xa, ra, margin, False)
-                            part_spheres += near
-                            exact_tests += exact
-                            touching += touched
+            if ti.static(model.rigid_capacity > 1):
+                count, first = self._partners(model, a)
+                for k in range(count):
+                    b = self._partner(a, first, k)
+                    if model.rigid_inv_mass[a] == 0.0 and model.rigid_inv_mass[b] == 0.0:
+                        continue
+                    level, margin = self._cascade(model, state, a, xa, ra, reach_a, b, h, 3, False)
+                    # counted in registers, written once below: a loop of global adds per pair (one per
+                    # level reached) made the 1000-box bin's step 1.4 ms longer (half a million pairs)
+                    if level >= 1:
+                        spheres += 1
+                        if level >= 2:
+                            aabbs += 1
+                            if level == 3:
+                                obbs += 1
+                                near, exact, touched = self._geoms(model, state, a, b, xa, ra, margin, False)
+                                part_spheres += near
+                                exact_tests += exact
+                                touching += touched
             if model.rigid_inv_mass[a] > 0.0:
                 self._collider_contacts(model, a, xa, ra, t, self.margin + reach_a)
         counts = ti.Vector([pairs, spheres, aabbs, obbs, touching, part_spheres, exact_tests])
