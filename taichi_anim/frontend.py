@@ -27,13 +27,17 @@ from __future__ import annotations
 
 import ast
 import functools
+import inspect
+import linecache
 import os
+import re
 import textwrap
 import traceback
 from types import SimpleNamespace
 
+import numpy as np
 import taichi as ti
-from taichi.lang import impl
+from taichi.lang import expr, impl
 from taichi.lang.exception import TaichiCompilationError, handle_exception_from_cpp
 
 CHECKED_VERSIONS = {(1, 7, 4)}
@@ -42,6 +46,7 @@ MULTILINE_HEADERS = ("For", "While", "FunctionDef", "If")  # Taichi prints only 
 _installed = False
 _originals: dict = {}
 _positions: dict = {}  # memo of formatted positions, keyed by the text and place they describe
+_lines: dict = {}  # (source line, first caret, end) -> that line and its carets, as get_pos_info wraps them
 _sources: dict = {}  # code object -> (source lines, first line)
 _files: dict = {}  # code object -> source file
 
@@ -62,6 +67,13 @@ class _Position:
 def _position_text(ctx, node) -> str:
     """Taichi's `get_pos_info(node)`, memoised on everything its text depends on."""
     first, last = node.lineno, node.end_lineno
+    if first == last:  # most nodes: the header, then the line and its carets (memoised on those alone)
+        col, end = ctx.indent + node.col_offset, ctx.indent + node.end_col_offset
+        code = ctx.src[first - 1]
+        shown = _lines.get((code, col, end))
+        if shown is None:
+            shown = _lines[code, col, end] = _code_and_hint(code, " " * col + "^" * (end - col))
+        return f'File "{ctx.file}", line {first + ctx.lineno_offset}, in {ctx.func.func.__name__}:\n' + shown
     body = getattr(node, "body", None)
     header_end = body[0].lineno if type(node).__name__ in MULTILINE_HEADERS and body else None
     key = (
@@ -81,6 +93,17 @@ def _position_text(ctx, node) -> str:
     if text is None:
         text = _positions[key] = _originals["get_pos_info"](ctx, node)
     return text
+
+
+def _code_and_hint(code: str, hint: str) -> str:
+    """What get_pos_info writes under its header for a one-line node: the line and its line of carets,
+    each wrapped to 80 columns, the pieces interleaved (Taichi's `gen_line`)."""
+    hint += " " * (len(code) - len(hint))
+    code_rows, hint_rows = _wrapped(80, code), _wrapped(80, hint)
+    if not code_rows:
+        return "\n\n"
+    # the carets can wrap to fewer rows than the code (trailing spaces dropped): zip stops at the shorter
+    return "".join(c + "\n" + h + "\n" for c, h in zip(code_rows, hint_rows, strict=False))
 
 
 def _builder_call(self, ctx, node):
@@ -128,16 +151,74 @@ def _by_code(table: dict, original, obj):
 
 
 def _getsourcelines(obj):
-    lines, first = _by_code(_sources, _originals["getsourcelines"], obj)
+    lines, first = _by_code(_sources, _first_sourcelines, obj)
     return list(lines), first
+
+
+_DEF_OR_DECORATOR = re.compile(r"^(\s*def\s)|(\s*async\s+def\s)|(.*(?<!\w)lambda(:|\s))|^(\s*@)")
+
+
+def _first_sourcelines(obj):
+    """`inspect.getsourcelines(obj)` for a plain function whose first line is its `def` or decorator:
+    the block from there, read from the file's lines (inspect also looks the module up first: half the
+    time of this first read of each function, which every process pays). Anything else goes to inspect."""
+    code = getattr(obj, "__code__", None)
+    if code is None or hasattr(obj, "__wrapped__") or not os.path.isfile(code.co_filename):
+        return _originals["getsourcelines"](obj)
+    lines = linecache.getlines(code.co_filename)
+    start = code.co_firstlineno - 1
+    if not 0 <= start < len(lines) or not _DEF_OR_DECORATOR.match(lines[start]):
+        return _originals["getsourcelines"](obj)
+    return inspect.getblock(lines[start:]), start + 1
 
 
 def _getsourcefile(obj):
     return _by_code(_files, _originals["getsourcefile"], obj)
 
 
+_fills: dict = {}
+
+
+def _fill(text, tabsize=4, width=9999):
+    """textwrap.fill(text, tabsize=tabsize, width=width), memoised (kernel_impl fills every source line
+    of a function at each inlined call; a plain dict is cheaper than lru_cache with keywords)."""
+    found = _fills.get((text, tabsize, width))
+    if found is None:
+        found = _fills[text, tabsize, width] = textwrap.fill(text, tabsize=tabsize, width=width)
+    return found
+
+
 # What kernel_impl reads from `textwrap`: fill (once per source line; memoised) and dedent.
-_textwrap = SimpleNamespace(fill=functools.lru_cache(maxsize=1 << 16)(textwrap.fill), dedent=textwrap.dedent)
+_textwrap = SimpleNamespace(fill=_fill, dedent=textwrap.dedent)
+
+
+_limits: dict = {}
+
+
+def _int_limits(npty) -> tuple:
+    """(min, max, bits) of a NumPy integer type: np.iinfo builds a new object at each call, and Taichi's
+    front end asks twice for every integer literal (8,554 times in the pile demo's contact step)."""
+    found = _limits.get(npty)
+    if found is None:
+        info = np.iinfo(npty)
+        found = _limits[npty] = (int(info.min), int(info.max), info.bits)
+    return found
+
+
+def _check_in_range(npty, val):
+    """taichi.lang.expr's check that an integer literal fits `npty`, with the limits memoised."""
+    low, high, _ = _int_limits(npty)
+    return low <= val <= high
+
+
+def _clamp_unsigned_to_range(npty, val):
+    """taichi.lang.expr's wrap of an unsigned literal above `npty`'s max into its signed range."""
+    low, high, bits = _int_limits(npty)
+    if low <= val <= high:
+        return val
+    cap = 1 << bits
+    assert 0 <= val < cap
+    return val - cap
 
 
 @functools.lru_cache(maxsize=1 << 16)
@@ -188,6 +269,8 @@ def install() -> bool:
         getsourcefile=kernel_impl.getsourcefile,
         textwrap=kernel_impl.textwrap,
         text_wrapper=utils.TextWrapper,
+        check_in_range=expr._check_in_range,
+        clamp_unsigned=expr._clamp_unsigned_to_range,
     )
     utils.ASTTransformerContext.get_pos_info = _position_text
     utils.Builder.__call__ = _builder_call
@@ -196,6 +279,8 @@ def install() -> bool:
     kernel_impl.getsourcefile = _getsourcefile
     kernel_impl.textwrap = _textwrap
     utils.TextWrapper = _MemoTextWrapper
+    expr._check_in_range = _check_in_range
+    expr._clamp_unsigned_to_range = _clamp_unsigned_to_range
     _installed = True
     return True
 
@@ -215,4 +300,6 @@ def uninstall() -> None:
     kernel_impl.getsourcefile = _originals["getsourcefile"]
     kernel_impl.textwrap = _originals["textwrap"]
     utils.TextWrapper = _originals["text_wrapper"]
+    expr._check_in_range = _originals["check_in_range"]
+    expr._clamp_unsigned_to_range = _originals["clamp_unsigned"]
     _installed = False
