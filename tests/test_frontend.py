@@ -123,3 +123,51 @@ def test_offline_cache_entries_are_the_same(tmp_path):
     patched = run(plain=False)
     assert len(patched) > 5
     assert run(plain=True) == patched
+
+
+def test_first_source_read_matches_inspect():
+    """The fast first read of a function's source gives inspect's lines and first line number, for
+    kernels' functions (decorated, methods, nested) across the engine's modules."""
+    import inspect
+
+    from taichi_anim.bodies.rigid import contacts, detection, gjk
+    from taichi_anim.integrators import base as integrators
+
+    def python_function(obj):
+        """The plain function behind a ti.func, ti.kernel or method, or None."""
+        for name in ("_primal", "func", "func"):
+            obj = getattr(obj, name, obj)
+        return obj if inspect.isfunction(obj) else None
+
+    funcs = [python_function(_spread), _kernels, test_first_source_read_matches_inspect]
+    for module in (contacts, detection, gjk, integrators):
+        for obj in vars(module).values():
+            for member in vars(obj).values() if inspect.isclass(obj) else [obj]:
+                func = python_function(member)
+                if func is not None and func.__module__ == module.__name__:
+                    funcs.append(func)
+    assert len(funcs) > 40
+    expected = [inspect.getsourcelines(func) for func in funcs]
+
+    def refuse(obj):
+        raise AssertionError(f"{obj.__qualname__} went to inspect")
+
+    saved = frontend._originals["getsourcelines"]
+    frontend._originals["getsourcelines"] = refuse  # every one of these takes the fast read
+    try:
+        for func, lines in zip(funcs, expected, strict=True):
+            assert frontend._first_sourcelines(func) == lines, func.__qualname__
+    finally:
+        frontend._originals["getsourcelines"] = saved
+
+
+def test_integer_literal_checks_match_taichis():
+    import numpy as np
+
+    check, clamp = frontend._originals["check_in_range"], frontend._originals["clamp_unsigned"]
+    for npty in (np.int8, np.int16, np.int32, np.int64, np.uint8, np.uint32, np.uint64):
+        info = np.iinfo(npty)
+        for val in (info.min, info.min - 1, info.max, info.max + 1, 0, -1, 2**31, 2**63 - 1, 2**63):
+            assert frontend._check_in_range(npty, val) == check(npty, val)
+    for val in (0, 2**63 - 1, 2**63, 2**64 - 1, -(2**63)):
+        assert frontend._clamp_unsigned_to_range(np.int64, val) == clamp(np.int64, val)
