@@ -16,12 +16,11 @@ class FluidModel:
 
     fluid_count; fluid_particles (F,) the particle index of each fluid particle (NumPy) and
     fluid_particle (F,) the same as a field for kernels (None without liquid), particle_is_fluid (N,) 1
-    for a liquid particle (liquid(i) reads it); fluid_capacity: the rows of every per-liquid-particle
-    field (F, or its power-of-two bucket under capacity buckets, whose kernels loop to live_fluid(),
-    read at run time); fluid_spacing [m],
-    fluid_support [m] (the SPH support radius), fluid_density [kg/m^3] at rest, fluid_mass [kg] per
-    particle; fluid: the solver's options (None without liquid), which the Stepper builds its solver
-    from (solvers.SOLVERS)."""
+    for a liquid particle (liquid(i) reads it), all_liquid: whether every particle is; fluid_capacity:
+    the rows of every per-liquid-particle field (F, or its power-of-two bucket under capacity buckets,
+    whose kernels loop to live_fluid(), read at run time); fluid_spacing [m], fluid_support [m] (the SPH
+    support radius), fluid_density [kg/m^3] at rest, fluid_mass [kg] per particle; fluid: the solver's
+    options (None without liquid), which the Stepper builds its solver from (solvers.SOLVERS)."""
 
     def _init_fluid(self, *, particles, options) -> None:
         self.fluid_particles = np.asarray(particles, dtype=np.int64)
@@ -30,6 +29,7 @@ class FluidModel:
         self.fluid_capacity = 0
         self.fluid = None
         self.fluid_particle = self.fluid_live = None
+        self.all_liquid = False  # every particle slot liquid: the particle step then skips colliders
         self.fluid_spacing = self.fluid_support = self.fluid_density = self.fluid_mass = 0.0
         if not self.fluid_count:
             return
@@ -39,6 +39,7 @@ class FluidModel:
         self.fluid_density = float(options["density"])
         self.fluid_mass = float(options["mass"])
         self.fluid_capacity = capacity.bucket(self.fluid_count) if self.size_buckets else self.fluid_count
+        self.all_liquid = self.fluid_count == self.particle_count
         if self.size_buckets:  # the live count, read by kernels at run time (live_fluid)
             self.fluid_live = self.new_field(self, "fluid_live", ti.i32, ())
             self.fluid_live[None] = self.fluid_count
