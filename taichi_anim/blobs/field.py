@@ -240,6 +240,7 @@ class BlobField:
         for b in range(self.block_count):
             self.block_flag[b] = 0
             self.block_slot[b] = -1
+        ti.loop_config(serialize=True)
         for _ in range(1):
             self.active_count[None] = 0
 

@@ -43,6 +43,7 @@ class FluidReport:
 
     @ti.kernel
     def _new_frame(self):
+        ti.loop_config(serialize=True)
         for _ in range(1):
             self.reached[None][0] = 0.0
             self.reached[None][1] = 0.0
