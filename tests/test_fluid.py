@@ -195,6 +195,37 @@ def test_the_liquid_is_held_by_its_walls_alone(monkeypatch):
     assert not model.all_liquid and swept
 
 
+@pytest.mark.parametrize("method", ["dfsph", "pbf"])
+def test_a_small_liquids_one_launch_solve_stops_where_a_launch_per_iteration_does(method):
+    """A small liquid solves in one launch (pressure.py, _solve_serially), comparing the errors' fixed-point
+    sum against the first sum whose mean exceeds the tolerance: the same iterations every step as the
+    launch-per-iteration loop, and the same positions to round-off (f64; the kernels are compiled
+    apart). And that first sum is exact: one less has its mean at or under the tolerance."""
+    from taichi_anim.bodies.fluid.pressure import ERROR_SCALE, first_sum_above
+    from taichi_anim.scenes import dam_break
+
+    runs = []
+    for one_launch in (True, False):
+        scene = dam_break.build(per_width=4, method=method)
+        stepper = scene.integrator.stepper_for(scene.model)
+        fluid = next(s for s in stepper.solvers if s.name == "fluid")
+        assert fluid.serial
+        fluid.one_launch_solve = one_launch
+        iterations = []
+        for _ in range(6):
+            stepper.advance(scene.state, 1.0 / 30.0, 1)
+            f = fluid.frame_stats()
+            iterations.append((f["steps"], f["divergence_iterations"], f["density_iterations"]))
+        runs.append((iterations, scene.state.positions()))
+    assert runs[0][0] == runs[1][0]
+    steps, density = (sum(r[k] for r in runs[0][0]) for k in (0, 2))
+    assert steps > 20 and density > steps  # the solves iterated
+    assert np.abs(runs[0][1] - runs[1][1]).max() < 1e-9
+    for tol, n in ((5e-4, 128), (1e-3, 2000), (1e-5, 7), (0.1, 1)):
+        e = first_sum_above(tol, n)
+        assert e / ERROR_SCALE / n > tol and not (e - 1) / ERROR_SCALE / n > tol
+
+
 def test_bad_fluid_input_is_refused():
     b = ta.Builder()
     with pytest.raises(ParameterError, match="add_fluid"):

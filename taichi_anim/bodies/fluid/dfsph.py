@@ -45,31 +45,26 @@ from ..rigid.quaternion import quat_matrix, world_inverse_inertia
 from . import surface_tension
 from .bodies import BodySamples, sphere_particles
 from .boundary import boundary_samples
+from .pressure import ERROR_SCALE, PressureSolves
 from .report import FluidReport
 from .sph_kernel import cubic_w, cubic_w_grad, lattice_sum
 
 FLUID_NEIGHBORS = 64  # listed fluid neighbours per particle (26 at rest; a compressed splash ~45)
 BODY_NEIGHBORS = 64  # listed samples of rigid bodies per particle (~13 at a face, ~40 at a corner)
-DIVERGENCE_MIN_NEIGHBORS = 20  # sparser particles (spray, the free surface) skip the divergence solve
-ERROR_SCALE = float(1 << 40)  # fixed-point unit of the summed errors
 # Fewer liquid particles: the solves' loops run serially (see __init__). The dam_break demo's frames of
 # 1/30 s, serial against parallel loops: 33 against 57 ms at 1,024 particles, 77 against 91 at 2,000,
 # 137 against 111 at 3,456 (benchmarks/fluid_realtime.py's scene).
 FLUID_SERIAL_BELOW = 3000
-# Warm starts: the share of the last step's summed stiffness a solve starts from. A kappa summed over
-# iterations can only grow (each iteration's is clamped to compression), so too much of it overshoots:
-# the whole of it made a settling column diverge within 4 steps of 4.2 ms (the corner particles, with
-# few neighbours and large alpha, overshoot first); half of it, where a particle is headed into
-# compression, takes 10 density iterations per step against 14.5 without (the column of
-# tests/test_fluid.py at 2 cm spacing).
-WARM_DENSITY, WARM_DIVERGENCE = 0.5, 0.0
 
 
 @data_oriented
-class FluidDynamics(FluidReport):
+class FluidDynamics(PressureSolves, FluidReport):
     """The liquid's pressure solver (module docstring); built by the Stepper from `model.fluid`."""
 
     name = "fluid"
+    # A small liquid's (serial) solve runs in one launch (_solve_serially); False: a launch per iteration
+    # (tests compare the two).
+    one_launch_solve = True
 
     def __init__(self, model, *, spacing, density, method, tolerance, divergence_tolerance, min_iterations,
                  max_iterations, viscosity, cfl, max_step, max_substeps, domain, mass,
@@ -227,86 +222,6 @@ class FluidDynamics(FluidReport):
             boundary_particles=self.boundary_count, neighbor_search=self.grid.settings(),
         )  # fmt: skip
 
-    # --- solves ---------------------------------------------------------------------------------
-
-    def _divergence_step(self, h: float, state) -> tuple[int, float]:
-        """The divergence solve on the velocities at the substep's start: (iterations, mean error)."""
-        iterations, mean, _ = self._solve(h, divergence=True, state=state)
-        self._write_velocities(state, self.model, h)
-        return iterations, mean
-
-    def _density_step(self, h: float, state) -> tuple[int, float, float]:
-        """The density solve on the velocities v* (self.sv): (iterations, mean, largest error)."""
-        return self._solve(h, divergence=False, state=state)
-
-    def _solve(self, h: float, *, divergence: bool, state) -> tuple[int, float, float]:
-        """Iterate until the mean error is below the tolerance (at least min_iterations; the divergence
-        solve at most one of them, as SPlisHSPlasH's): (iterations, mean error, largest error) of the
-        final velocities."""
-        n = int(self.grid.size[None]) if self.emitted else self.model.fluid_count
-        if n == 0:  # nothing emitted yet
-            return 0, 0.0, 0.0
-        if self.coupled:
-            self.bodies.move(self.model, state)  # the bodies' velocities now (the samples' speeds)
-        tol = self.divergence_tolerance if divergence else self.tolerance
-        least = min(self.min_iterations, 1) if divergence else self.min_iterations
-        # Each launch returns the errors' fixed-point sum: reading the field after it would be one more
-        # launch per iteration (a small liquid's frame made about 60 such reads).
-        mean = self._start(state, self.model, h, divergence) / ERROR_SCALE / n
-        it = 0
-        while it < self.max_iterations and (mean > tol or it < least):
-            mean = self._iterate(h, divergence) / ERROR_SCALE / n
-            it += 1
-        if self.coupled:
-            # The bodies take their impulses once per solve. Giving them back after every iteration
-            # (the samples then moving within the solve) changed neither a floating plank's heave
-            # nor its tilt over 3 s, so the cheaper exchange stays.
-            self._push_bodies(self.model, state, h)
-        return it, mean, float(self.err_max[None])
-
-    @ti.func
-    def _flux(self, k):
-        """Drho_k/Dt [kg/m^3/s] from the slot velocities (static boundary)."""
-        vi = self.sv[k]
-        d = vi.dot(self.wall_grad[k])  # every boundary sample, the bodies' at rest
-        for m in range(self.nn[k]):
-            d += (vi - self.sv[self.nbr[k, m]]).dot(self.grad[k, m])
-        if ti.static(self.coupled):  # the bodies' samples move
-            for m in range(self.body_n[k]):
-                d -= self.bodies.v[self.body_nbr[k, m]].dot(self.body_grad[k, m])
-        return d
-
-    @ti.func
-    def _predict(self, h, divergence: ti.template()):
-        """Each slot's stiffness kappa from its predicted error, and the errors' fixed-point sum and max."""
-        ti.loop_config(serialize=self.serial)
-        for k in range(self._live()):
-            d = self._flux(k)
-            s, e = ti.cast(0.0, float), ti.cast(0.0, float)
-            if ti.static(divergence):
-                if self.nn[k] + self.bn[k] >= DIVERGENCE_MIN_NEIGHBORS:
-                    s = ti.max(d, 0.0)
-                self.kappa[k] = s * self.alpha[k] / h
-                e = s * h / self.rest_density
-            else:
-                s = ti.max(self.rho[k] + h * d - self.rest_density, 0.0)
-                self.kappa[k] = s * self.alpha[k] / (h * h)
-                e = s / self.rest_density
-            ti.atomic_add(self.err_sum[None], ti.cast(e * ERROR_SCALE + 0.5, ti.i64))
-            ti.atomic_max(self.err_max[None], e)
-
-    @ti.func
-    def _correct(self, h):
-        """v_k -= h [sum_j m (kappa_k + kappa_j) grad W + sum_b psi_b kappa_k grad W]; kappa summed."""
-        ti.loop_config(serialize=self.serial)
-        for k in range(self._live()):
-            ki = self.kappa[k]
-            dv = ki * self.wall_grad[k]
-            for m in range(self.nn[k]):
-                dv += (ki + self.kappa[self.nbr[k, m]]) * self.grad[k, m]
-            self.sv[k] -= h * dv
-            self.kacc[k] += ki
-
     @ti.func
     def _live(self):
         """The slots the solves run over: the live particles (the grid's count) with nozzles, else all
@@ -315,42 +230,6 @@ class FluidDynamics(FluidReport):
         if ti.static(self.emitted):
             n = self.grid.size[None]
         return n
-
-    @ti.kernel
-    def _start(
-        self, state: ti.template(), model: ti.template(), h: float, divergence: ti.template()
-    ) -> ti.i64:
-        """Warm start from a share of the last step's stiffness, then the first prediction; returns the
-        errors' fixed-point sum."""
-        ti.loop_config(serialize=self.serial)
-        for k in range(self._live()):
-            j = self.grid.sorted_id[k]
-            self.kacc[k] = 0.0
-            if ti.static(divergence):
-                self.kappa[k] = WARM_DIVERGENCE * state.fluid_kappa_v[j] / h
-            else:
-                # Only where the particle is headed into compression (as SPlisHSPlasH). Applied to every
-                # particle, one start of a settled column read its pressure slope 4.5 % steep against
-                # 1.5 %, but starts moved by 1e-10 m spread this way's from +1.5 to +7.3 %
-                # (tests/test_fluid.py, SLOPE_TOLERANCE): the choice follows SPlisHSPlasH, not that pair.
-                self.kappa[k] = 0.0
-                if self.rho[k] + h * self._flux(k) > self.rest_density:
-                    self.kappa[k] = WARM_DENSITY * state.fluid_kappa[j] / (h * h)
-        if ti.static(not divergence or WARM_DIVERGENCE > 0.0):
-            self._correct(h)
-        self.err_sum[None] = 0
-        self.err_max[None] = 0.0
-        self._predict(h, divergence)
-        return self.err_sum[None]
-
-    @ti.kernel
-    def _iterate(self, h: float, divergence: ti.template()) -> ti.i64:
-        """One correction and the next prediction; returns the errors' fixed-point sum."""
-        self._correct(h)
-        self.err_sum[None] = 0
-        self.err_max[None] = 0.0
-        self._predict(h, divergence)
-        return self.err_sum[None]
 
     # --- gathering and scattering ----------------------------------------------------------------
 

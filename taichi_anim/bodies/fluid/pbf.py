@@ -24,7 +24,8 @@ each boundary sample's goes back to its body as an impulse, so momentum is conse
 import taichi as ti
 
 from ...runtime import data_oriented
-from .dfsph import ERROR_SCALE, FluidDynamics
+from .dfsph import FluidDynamics
+from .pressure import ERROR_SCALE, first_sum_above
 from .sph_kernel import cubic_w, cubic_w_grad
 
 
@@ -52,19 +53,54 @@ class PositionBasedFluid(FluidDynamics):
             return 0, 0.0, 0.0
         if self.coupled:
             self.bodies.move(self.model, state)
-        self._predict_positions(h)
-        mean = self._constraints(h) / ERROR_SCALE / n  # launches return the errors' sum (dfsph.py)
-        it = 0
-        while it < self.max_iterations and (mean > self.tolerance or it < self.min_iterations):
-            mean = self._project_and_constrain(h) / ERROR_SCALE / n
-            it += 1
-        self._velocities(h)
+        if self.serial and self.one_launch_solve:  # the whole solve in one launch (pressure.py)
+            above = first_sum_above(self.tolerance, n)
+            it, total = (
+                int(c) for c in self._solve_serially(h, above, self.min_iterations, self.max_iterations)
+            )
+            mean = total / ERROR_SCALE / n
+        else:
+            self._predict_positions(h)
+            mean = self._constraints(h) / ERROR_SCALE / n  # launches return the errors' sum (pressure.py)
+            it = 0
+            while it < self.max_iterations and (mean > self.tolerance or it < self.min_iterations):
+                mean = self._project_and_constrain(h) / ERROR_SCALE / n
+                it += 1
+            self._velocities(h)
         if self.coupled:
             self._push_bodies(self.model, state, h)
         return it, mean, float(self.err_max[None])
 
     @ti.kernel
     def _predict_positions(self, h: float):
+        self._predict_positions_pass(h)
+
+    @ti.kernel
+    def _velocities(self, h: float):
+        self._velocities_pass(h)
+
+    @ti.kernel
+    def _solve_serially(self, h: float, above: ti.i64, least: ti.i32, most: ti.i32) -> ti.types.vector(
+        2, ti.i64
+    ):
+        """Prediction, constraints, projections while the errors' sum is at least `above` or fewer than
+        `least` were made (at most `most`), velocities: returns (iterations, the last errors' sum)."""
+        out = ti.Vector([0, 0], dt=ti.i64)
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            self._predict_positions_pass(h)
+            self._constraint_pass(h)
+            it = 0
+            while it < most and (self.err_sum[None] >= above or it < least):
+                self._project(h)
+                self._constraint_pass(h)
+                it += 1
+            self._velocities_pass(h)
+            out = ti.Vector([it, self.err_sum[None]], dt=ti.i64)
+        return out
+
+    @ti.func
+    def _predict_positions_pass(self, h):
         w0 = cubic_w(0.0, self.support)
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
@@ -139,8 +175,8 @@ class PositionBasedFluid(FluidDynamics):
         for k in range(self._live()):
             self.px[k] = self.px2[k]
 
-    @ti.kernel
-    def _velocities(self, h: float):
+    @ti.func
+    def _velocities_pass(self, h):
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             self.sv[k] = (self.px[k] - self.grid.sorted_x[k]) / h

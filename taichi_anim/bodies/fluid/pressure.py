@@ -1,0 +1,199 @@
+"""The liquid's pressure solves (dfsph.py, steps 1 and 3 of its docstring): the divergence solve and the
+density solve of divergence-free SPH (Bender & Koschier, SCA 2015, alg. 2 and 3; TVCG 2017, eq. 8-12),
+iterated until the mean error is under the tolerance. This mixin holds them, on FluidDynamics's fields
+(the neighbour lists, alpha, kappa) and its neighbourhood pass.
+
+A solve is a launch for its warm start and first prediction and one per iteration, each returning the
+errors' fixed-point sum (2^-40 units: its atomic sum does not depend on thread timing), or, for a small
+liquid whose loops run serially, one launch for the whole solve (_solve_serially)."""
+
+import math
+
+import taichi as ti
+
+from ...runtime import data_oriented
+
+DIVERGENCE_MIN_NEIGHBORS = 20  # sparser particles (spray, the free surface) skip the divergence solve
+ERROR_SCALE = float(1 << 40)  # fixed-point unit of the summed errors
+
+
+def first_sum_above(tolerance: float, count: int) -> int:
+    """The least fixed-point error sum e whose mean, e / ERROR_SCALE / count in floating point as _solve
+    computes it, is above `tolerance`: comparing e >= it in a kernel stops where that mean would."""
+    e = math.floor(tolerance * ERROR_SCALE * count)
+    while e > 0 and e / ERROR_SCALE / count > tolerance:
+        e -= 1
+    while not e / ERROR_SCALE / count > tolerance:
+        e += 1
+    return e
+
+
+# Warm starts: the share of the last step's summed stiffness a solve starts from. A kappa summed over
+# iterations can only grow (each iteration's is clamped to compression), so too much of it overshoots:
+# the whole of it made a settling column diverge within 4 steps of 4.2 ms (the corner particles, with
+# few neighbours and large alpha, overshoot first); half of it, where a particle is headed into
+# compression, takes 10 density iterations per step against 14.5 without (the column of
+# tests/test_fluid.py at 2 cm spacing).
+WARM_DENSITY, WARM_DIVERGENCE = 0.5, 0.0
+
+
+@data_oriented
+class PressureSolves:
+    """Mixin of FluidDynamics: the divergence and density solves."""
+
+    def _divergence_step(self, h: float, state) -> tuple[int, float]:
+        """The divergence solve on the velocities at the substep's start: (iterations, mean error)."""
+        iterations, mean, _ = self._solve(h, divergence=True, state=state)
+        self._write_velocities(state, self.model, h)
+        return iterations, mean
+
+    def _density_step(self, h: float, state) -> tuple[int, float, float]:
+        """The density solve on the velocities v* (self.sv): (iterations, mean, largest error)."""
+        return self._solve(h, divergence=False, state=state)
+
+    def _solve(self, h: float, *, divergence: bool, state) -> tuple[int, float, float]:
+        """Iterate until the mean error is below the tolerance (at least min_iterations; the divergence
+        solve at most one of them, as SPlisHSPlasH's): (iterations, mean error, largest error) of the
+        final velocities."""
+        n = int(self.grid.size[None]) if self.emitted else self.model.fluid_count
+        if n == 0:  # nothing emitted yet
+            return 0, 0.0, 0.0
+        if self.coupled:
+            self.bodies.move(self.model, state)  # the bodies' velocities now (the samples' speeds)
+        tol = self.divergence_tolerance if divergence else self.tolerance
+        least = min(self.min_iterations, 1) if divergence else self.min_iterations
+        if self.serial and self.one_launch_solve:  # the whole solve in one launch: its loops are serial
+            it, total = (int(c) for c in self._solve_serially(
+                state, self.model, h, divergence, first_sum_above(tol, n), least, self.max_iterations
+            ))  # fmt: skip
+            mean = total / ERROR_SCALE / n
+        else:
+            # Each launch returns the errors' fixed-point sum: reading the field after it would be one
+            # more launch per iteration (a small liquid's frame made about 60 such reads).
+            mean = self._start(state, self.model, h, divergence) / ERROR_SCALE / n
+            it = 0
+            while it < self.max_iterations and (mean > tol or it < least):
+                mean = self._iterate(h, divergence) / ERROR_SCALE / n
+                it += 1
+        if self.coupled:
+            # The bodies take their impulses once per solve. Giving them back after every iteration
+            # (the samples then moving within the solve) changed neither a floating plank's heave
+            # nor its tilt over 3 s, so the cheaper exchange stays.
+            self._push_bodies(self.model, state, h)
+        return it, mean, float(self.err_max[None])
+
+    @ti.func
+    def _flux(self, k):
+        """Drho_k/Dt [kg/m^3/s] from the slot velocities (static boundary)."""
+        vi = self.sv[k]
+        d = vi.dot(self.wall_grad[k])  # every boundary sample, the bodies' at rest
+        for m in range(self.nn[k]):
+            d += (vi - self.sv[self.nbr[k, m]]).dot(self.grad[k, m])
+        if ti.static(self.coupled):  # the bodies' samples move
+            for m in range(self.body_n[k]):
+                d -= self.bodies.v[self.body_nbr[k, m]].dot(self.body_grad[k, m])
+        return d
+
+    @ti.func
+    def _predict(self, h, divergence: ti.template()):
+        """Each slot's stiffness kappa from its predicted error, and the errors' fixed-point sum and max."""
+        ti.loop_config(serialize=self.serial)
+        for k in range(self._live()):
+            d = self._flux(k)
+            s, e = ti.cast(0.0, float), ti.cast(0.0, float)
+            if ti.static(divergence):
+                if self.nn[k] + self.bn[k] >= DIVERGENCE_MIN_NEIGHBORS:
+                    s = ti.max(d, 0.0)
+                self.kappa[k] = s * self.alpha[k] / h
+                e = s * h / self.rest_density
+            else:
+                s = ti.max(self.rho[k] + h * d - self.rest_density, 0.0)
+                self.kappa[k] = s * self.alpha[k] / (h * h)
+                e = s / self.rest_density
+            ti.atomic_add(self.err_sum[None], ti.cast(e * ERROR_SCALE + 0.5, ti.i64))
+            ti.atomic_max(self.err_max[None], e)
+
+    @ti.func
+    def _correct(self, h):
+        """v_k -= h [sum_j m (kappa_k + kappa_j) grad W + sum_b psi_b kappa_k grad W]; kappa summed."""
+        ti.loop_config(serialize=self.serial)
+        for k in range(self._live()):
+            ki = self.kappa[k]
+            dv = ki * self.wall_grad[k]
+            for m in range(self.nn[k]):
+                dv += (ki + self.kappa[self.nbr[k, m]]) * self.grad[k, m]
+            self.sv[k] -= h * dv
+            self.kacc[k] += ki
+
+    @ti.kernel
+    def _start(
+        self, state: ti.template(), model: ti.template(), h: float, divergence: ti.template()
+    ) -> ti.i64:
+        """_first_prediction; returns the errors' fixed-point sum."""
+        self._first_prediction(state, h, divergence)
+        return self.err_sum[None]
+
+    @ti.kernel
+    def _iterate(self, h: float, divergence: ti.template()) -> ti.i64:
+        """_next_prediction; returns the errors' fixed-point sum."""
+        self._next_prediction(h, divergence)
+        return self.err_sum[None]
+
+    # A small liquid's solve in one launch, not a launch per iteration (about 25 us each here, more
+    # than a small liquid's iteration): its loops are serial anyway. The mean error is compared as the
+    # fixed-point sum against the first sum whose mean exceeds the tolerance (first_sum_above), so the
+    # iterations stop exactly where the launch-per-iteration loop in _solve stops.
+    @ti.kernel
+    def _solve_serially(
+        self,
+        state: ti.template(),
+        model: ti.template(),
+        h: float,
+        divergence: ti.template(),
+        above: ti.i64,
+        least: ti.i32,
+        most: ti.i32,
+    ) -> ti.types.vector(2, ti.i64):
+        """The first prediction, then iterations while the errors' sum is at least `above` or fewer than
+        `least` were made, at most `most`; returns (iterations, the last errors' fixed-point sum)."""
+        out = ti.Vector([0, 0], dt=ti.i64)
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            self._first_prediction(state, h, divergence)
+            it = 0
+            while it < most and (self.err_sum[None] >= above or it < least):
+                self._next_prediction(h, divergence)
+                it += 1
+            out = ti.Vector([it, self.err_sum[None]], dt=ti.i64)
+        return out
+
+    @ti.func
+    def _first_prediction(self, state: ti.template(), h, divergence: ti.template()):
+        """Warm start from a share of the last step's stiffness, then the first prediction."""
+        ti.loop_config(serialize=self.serial)
+        for k in range(self._live()):
+            j = self.grid.sorted_id[k]
+            self.kacc[k] = 0.0
+            if ti.static(divergence):
+                self.kappa[k] = WARM_DIVERGENCE * state.fluid_kappa_v[j] / h
+            else:
+                # Only where the particle is headed into compression (as SPlisHSPlasH). Applied to every
+                # particle, one start of a settled column read its pressure slope 4.5 % steep against
+                # 1.5 %, but starts moved by 1e-10 m spread this way's from +1.5 to +7.3 %
+                # (tests/test_fluid.py, SLOPE_TOLERANCE): the choice follows SPlisHSPlasH, not that pair.
+                self.kappa[k] = 0.0
+                if self.rho[k] + h * self._flux(k) > self.rest_density:
+                    self.kappa[k] = WARM_DENSITY * state.fluid_kappa[j] / (h * h)
+        if ti.static(not divergence or WARM_DIVERGENCE > 0.0):
+            self._correct(h)
+        self.err_sum[None] = 0
+        self.err_max[None] = 0.0
+        self._predict(h, divergence)
+
+    @ti.func
+    def _next_prediction(self, h, divergence: ti.template()):
+        """One correction and the next prediction."""
+        self._correct(h)
+        self.err_sum[None] = 0
+        self.err_max[None] = 0.0
+        self._predict(h, divergence)
