@@ -1,4 +1,5 @@
-"""bulk.fill: many fields written in one launch hold what from_numpy writes, bit for bit."""
+"""bulk.fill: many fields written in one launch hold what from_numpy writes, bit for bit; bulk.read:
+many fields read in one launch give what to_numpy gives."""
 
 import numpy as np
 import pytest
@@ -29,6 +30,31 @@ def test_one_launch_writes_what_from_numpy_writes():
     bulk.fill(pairs)
     for (field, _), reference in zip(pairs, expected, strict=True):
         np.testing.assert_array_equal(field.to_numpy(), reference.to_numpy())
+
+
+def test_one_launch_reads_what_to_numpy_reads(monkeypatch):
+    """Scalars, vectors and matrices of floats and ints, read over their first rows in one launch: the
+    same values and types as to_numpy, with the requested shapes; no row and too many rows."""
+    rng = np.random.default_rng(1)
+    fields = []
+    for dims, dtype in [((), float), ((3,), float), ((3, 3), float), ((), ti.i32), ((4,), float)]:
+        f = capacity.make(dtype, (7,), dims)
+        f.from_numpy(
+            rng.integers(-99, 99, (7, *dims)).astype(np.int32) if dtype == ti.i32 else rng.random((7, *dims))
+        )
+        fields.append(f)
+    launches = []
+    kernel = bulk._read_kernel
+    monkeypatch.setattr(bulk, "_read_kernel", lambda *a: launches.append(1) or kernel(*a))
+    got = bulk.read(fields, 5)
+    assert len(launches) == 1
+    for f, a in zip(fields, got, strict=True):
+        expected = f.to_numpy()[:5]
+        assert a.dtype == expected.dtype and a.shape == expected.shape
+        np.testing.assert_array_equal(a, expected)
+    assert [a.shape for a in bulk.read(fields[:2], 0)] == [(0,), (0, 3)] and len(launches) == 1
+    with pytest.raises(ValueError, match=r"8 rows of a field of shape \(7,\)"):
+        bulk.read(fields, 8)
 
 
 def test_a_wrong_shape_is_refused():

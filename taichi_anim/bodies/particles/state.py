@@ -91,11 +91,11 @@ class ParticleState:
 
     def positions(self) -> np.ndarray:
         """(N,3) float64 positions [m] of every particle slot, alive or not (snapshot() gives the alive)."""
-        return self.particle_x.to_numpy()[: self.model.particle_count].astype(np.float64)
+        return bulk.read([self.particle_x], self.model.particle_count)[0].astype(np.float64)
 
     def velocities(self) -> np.ndarray:
         """(N,3) float64 velocities [m/s] of every particle slot."""
-        return self.particle_v.to_numpy()[: self.model.particle_count].astype(np.float64)
+        return bulk.read([self.particle_v], self.model.particle_count)[0].astype(np.float64)
 
     def set_positions(self, x, indices=None) -> None:
         """Overwrite positions [m]: `x` is (N,3) for every particle, or (len(indices),3) with `indices`
@@ -126,17 +126,21 @@ class ParticleState:
         """(N,) bool: particles alive now."""
         if not self.has_lifetimes:
             return np.ones(self.model.particle_count, dtype=bool)
-        return self.particle_death.to_numpy()[: self.model.particle_count] > self.time
+        return bulk.read([self.particle_death], self.model.particle_count)[0] > self.time
 
     def snapshot(self) -> ParticleSnapshot:
         """Copy the alive particles to NumPy (read-only output; never fed back)."""
-        alive = self.alive_mask()
-        idx = np.nonzero(alive)[0]
-        x = self.particle_x.to_numpy()[idx]
-        v = self.particle_v.to_numpy()[idx]
+        n = self.model.particle_count
+        if self.has_lifetimes:  # one launch for every array (bulk.read)
+            x, v, birth, death = bulk.read(
+                [self.particle_x, self.particle_v, self.particle_birth, self.particle_death], n
+            )
+            idx = np.nonzero(death > self.time)[0]
+            x, v, birth, death = x[idx], v[idx], birth[idx], death[idx]
+        else:
+            x, v = bulk.read([self.particle_x, self.particle_v], n)
+            idx = np.arange(n)
         if self.has_lifetimes:
-            birth = self.particle_birth.to_numpy()[idx]
-            death = self.particle_death.to_numpy()[idx]
             age = self.time - birth
             life = np.where(death >= ALIVE_FOREVER, np.inf, death - birth)
         else:

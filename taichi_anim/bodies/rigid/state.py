@@ -74,7 +74,7 @@ class RigidState:
             dst.rigid_torque[i] = src.rigid_torque[i]
 
     def _rigid_rows(self, field) -> np.ndarray:
-        return field.to_numpy()[: self.model.rigid_count].astype(np.float64)
+        return bulk.read([field], self.model.rigid_count)[0].astype(np.float64)
 
     def rigid_snapshot(self) -> RigidSnapshot:
         """The bodies now, in the frames add_rigid_body took (see RigidSnapshot)."""
@@ -83,13 +83,12 @@ class RigidState:
         if not b:
             z3, z4 = np.zeros((0, 3)), np.zeros((0, 4))
             return RigidSnapshot(self.time, z3, z4, z3, z3, z3)
-        x, q = self._rigid_rows(self.rigid_x), self._rigid_rows(self.rigid_q)
+        rows = bulk.read([self.rigid_x, self.rigid_q, self.rigid_v, self.rigid_w], b)  # one launch
+        x, q, v, w = (a.astype(np.float64) for a in rows)
         q_shape = quat_product(q, quat_conjugate(model.rigid_principal))
         q_shape /= np.linalg.norm(q_shape, axis=1, keepdims=True)
         origin = x - np.einsum("bij,bj->bi", quat_to_matrix(q_shape), model.rigid_com)
-        return RigidSnapshot(
-            self.time, origin, q_shape, self._rigid_rows(self.rigid_v), self._rigid_rows(self.rigid_w), x
-        )
+        return RigidSnapshot(self.time, origin, q_shape, v, w, x)
 
     def set_rigid_force(self, body: int, force=(0.0, 0.0, 0.0), *, point=None, torque=(0.0, 0.0, 0.0)):
         """Apply `force` [N] (world axes) to `body` at world `point` [m] (default: its centre of mass)
