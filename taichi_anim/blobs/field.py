@@ -340,10 +340,13 @@ class BlobField:
             self._outward_normals(pts, out)
         return out
 
+    # A row of nodes per iteration: a 3-D ndrange over runtime sizes divides each flat index back into
+    # (i, j, k), which took about 10 ns a node (1.3 ms for the dam break's box) for a plain copy.
     @ti.kernel
     def _copy_box(self, out: ti.types.ndarray(), o0: ti.i32, o1: ti.i32, o2: ti.i32):
-        for i, j, k in ti.ndrange(out.shape[0], out.shape[1], out.shape[2]):
-            out[i, j, k] = self.psi[o0 + i, o1 + j, o2 + k]
+        for i, j in ti.ndrange(out.shape[0], out.shape[1]):
+            for k in range(out.shape[2]):
+                out[i, j, k] = self.psi[o0 + i, o1 + j, o2 + k]
 
     def active_volume(self) -> tuple[np.ndarray, np.ndarray]:
         """(origin (3,) int node index, psi (a, b, c) copy) of the smallest box of nodes holding every
