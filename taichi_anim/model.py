@@ -44,8 +44,9 @@ class Model(*MODEL_PARTS):
             capacity.collect_dropped()  # a dropped scene's fields back in the pool before this one asks
         # Each kind's arrays, from the builder's parts (bodies: {kind name: init_model's arguments}).
         self.kinds = KINDS
-        for kind in KINDS:
-            kind.init_model(self, **bodies[kind.name])
+        with bulk.batch():  # every kind's arrays in one fill launch (a kind reads none of them here)
+            for kind in KINDS:
+                kind.init_model(self, **bodies[kind.name])
         n = self.particle_count
         self.seed = seed
         self.settings = dict(settings)  # a copy: the builder's record is not written to

@@ -5,7 +5,7 @@ from types import MappingProxyType
 import numpy as np
 import taichi as ti
 
-from ... import capacity
+from ... import bulk, capacity
 from ...runtime import data_oriented
 from .builder import SUPPORT_PER_SPACING
 
@@ -44,11 +44,15 @@ class FluidModel:
             self.fluid_live = self.new_field(self, "fluid_live", ti.i32, ())
             self.fluid_live[None] = self.fluid_count
         self.fluid_particle = self.new_field(self, "fluid_particle", ti.i32, self.fluid_capacity)
-        self.fluid_particle.from_numpy(capacity.padded(self.fluid_particles, self.fluid_capacity, np.int32))
         mask = np.zeros(self.particle_count, dtype=np.int32)
         mask[self.fluid_particles] = 1
         self.particle_is_fluid = self.particle_array(self, "particle_is_fluid", ti.i32)
-        self.particle_is_fluid.from_numpy(self.padded(mask, np.int32))
+        bulk.fill(  # with the other kinds' arrays (Model.__init__'s batch): from_numpy is a kernel each
+            [
+                (self.fluid_particle, capacity.padded(self.fluid_particles, self.fluid_capacity, np.int32)),
+                (self.particle_is_fluid, self.padded(mask, np.int32)),
+            ]
+        )
 
     @ti.func
     def live_fluid(self):

@@ -54,7 +54,7 @@ class ParticleModel:
         self.per_particle_radius = self.uniform_radius is None  # compile-time branch in kernels
         if self.uniform_radius is None:
             self.particle_radius = self.particle_array(self, "particle_radius")
-            self.particle_radius.from_numpy(self.padded(radii))
+            bulk.fill([(self.particle_radius, self.padded(radii))])
         self._static_count = n - sum(e.capacity for e in self.emitters)
 
     def particle_array(self, owner, role: str, dtype=float, dims: tuple = (), extra: tuple = ()):
