@@ -64,16 +64,16 @@ class PressureSolves:
         least = min(self.min_iterations, 1) if divergence else self.min_iterations
         if self.serial and self.one_launch_solve:  # the whole solve in one launch: its loops are serial
             it, total = (int(c) for c in self._solve_serially(
-                state, self.model, h, divergence, first_sum_above(tol, n), least, self.max_iterations
+                state, self.model, h, int(divergence), first_sum_above(tol, n), least, self.max_iterations
             ))  # fmt: skip
             mean = total / ERROR_SCALE / n
         else:
             # Each launch returns the errors' fixed-point sum: reading the field after it would be one
             # more launch per iteration (a small liquid's frame made about 60 such reads).
-            mean = self._start(state, self.model, h, divergence) / ERROR_SCALE / n
+            mean = self._start(state, self.model, h, int(divergence)) / ERROR_SCALE / n
             it = 0
             while it < self.max_iterations and (mean > tol or it < least):
-                mean = self._iterate(h, divergence) / ERROR_SCALE / n
+                mean = self._iterate(h, int(divergence)) / ERROR_SCALE / n
                 it += 1
         if self.coupled:
             # The bodies take their impulses once per solve. Giving them back after every iteration
@@ -95,13 +95,13 @@ class PressureSolves:
         return d
 
     @ti.func
-    def _predict(self, h, divergence: ti.template()):
+    def _predict(self, h, divergence):
         """Each slot's stiffness kappa from its predicted error, and the errors' fixed-point sum and max."""
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             d = self._flux(k)
             s, e = ti.cast(0.0, float), ti.cast(0.0, float)
-            if ti.static(divergence):
+            if divergence:
                 if self.nn[k] + self.bn[k] >= DIVERGENCE_MIN_NEIGHBORS:
                     s = ti.max(d, 0.0)
                 self.kappa[k] = s * self.alpha[k] / h
@@ -114,27 +114,27 @@ class PressureSolves:
             ti.atomic_max(self.err_max[None], e)
 
     @ti.func
-    def _correct(self, h):
-        """v_k -= h [sum_j m (kappa_k + kappa_j) grad W + sum_b psi_b kappa_k grad W]; kappa summed."""
+    def _correct(self, h, apply):
+        """v_k -= h [sum_j m (kappa_k + kappa_j) grad W + sum_b psi_b kappa_k grad W]; kappa summed.
+        `apply` (a flag read in the loop, so that the loop stays a parallel one): False skips it."""
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
-            ki = self.kappa[k]
-            dv = ki * self.wall_grad[k]
-            for m in range(self.nn[k]):
-                dv += (ki + self.kappa[self.nbr[k, m]]) * self.grad[k, m]
-            self.sv[k] -= h * dv
-            self.kacc[k] += ki
+            if apply:
+                ki = self.kappa[k]
+                dv = ki * self.wall_grad[k]
+                for m in range(self.nn[k]):
+                    dv += (ki + self.kappa[self.nbr[k, m]]) * self.grad[k, m]
+                self.sv[k] -= h * dv
+                self.kacc[k] += ki
 
     @ti.kernel
-    def _start(
-        self, state: ti.template(), model: ti.template(), h: float, divergence: ti.template()
-    ) -> ti.i64:
+    def _start(self, state: ti.template(), model: ti.template(), h: float, divergence: ti.i32) -> ti.i64:
         """_first_prediction; returns the errors' fixed-point sum."""
         self._first_prediction(state, h, divergence)
         return self.err_sum[None]
 
     @ti.kernel
-    def _iterate(self, h: float, divergence: ti.template()) -> ti.i64:
+    def _iterate(self, h: float, divergence: ti.i32) -> ti.i64:
         """_next_prediction; returns the errors' fixed-point sum."""
         self._next_prediction(h, divergence)
         return self.err_sum[None]
@@ -149,7 +149,7 @@ class PressureSolves:
         state: ti.template(),
         model: ti.template(),
         h: float,
-        divergence: ti.template(),
+        divergence: ti.i32,
         above: ti.i64,
         least: ti.i32,
         most: ti.i32,
@@ -168,13 +168,13 @@ class PressureSolves:
         return out
 
     @ti.func
-    def _first_prediction(self, state: ti.template(), h, divergence: ti.template()):
+    def _first_prediction(self, state: ti.template(), h, divergence):
         """Warm start from a share of the last step's stiffness, then the first prediction."""
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             j = self.grid.sorted_id[k]
             self.kacc[k] = 0.0
-            if ti.static(divergence):
+            if divergence:
                 self.kappa[k] = WARM_DIVERGENCE * state.fluid_kappa_v[j] / h
             else:
                 # Only where the particle is headed into compression (as SPlisHSPlasH). Applied to every
@@ -184,16 +184,15 @@ class PressureSolves:
                 self.kappa[k] = 0.0
                 if self.rho[k] + h * self._flux(k) > self.rest_density:
                     self.kappa[k] = WARM_DENSITY * state.fluid_kappa[j] / (h * h)
-        if ti.static(not divergence or WARM_DIVERGENCE > 0.0):
-            self._correct(h)
+        self._correct(h, ti.static(WARM_DIVERGENCE > 0.0) or not divergence)
         self.err_sum[None] = 0
         self.err_max[None] = 0.0
         self._predict(h, divergence)
 
     @ti.func
-    def _next_prediction(self, h, divergence: ti.template()):
+    def _next_prediction(self, h, divergence):
         """One correction and the next prediction."""
-        self._correct(h)
+        self._correct(h, True)
         self.err_sum[None] = 0
         self.err_max[None] = 0.0
         self._predict(h, divergence)
