@@ -56,7 +56,7 @@ class PositionBasedFluid(FluidDynamics):
         if self.serial and self.one_launch_solve:  # the whole solve in one launch (pressure.py)
             above = first_sum_above(self.tolerance, n)
             it, total = (
-                int(c) for c in self._solve_serially(h, above, self.min_iterations, self.max_iterations)
+                int(c) for c in self._constrain_serially(h, above, self.min_iterations, self.max_iterations)
             )
             mean = total / ERROR_SCALE / n
         else:
@@ -80,11 +80,13 @@ class PositionBasedFluid(FluidDynamics):
         self._velocities_pass(h)
 
     @ti.kernel
-    def _solve_serially(self, h: float, above: ti.i64, least: ti.i32, most: ti.i32) -> ti.types.vector(
+    def _constrain_serially(self, h: float, above: ti.i64, least: ti.i32, most: ti.i32) -> ti.types.vector(
         2, ti.i64
     ):
         """Prediction, constraints, projections while the errors' sum is at least `above` or fewer than
-        `least` were made (at most `most`), velocities: returns (iterations, the last errors' sum)."""
+        `least` were made (at most `most`), velocities: returns (iterations, the last errors' sum). A
+        small liquid's density step in one launch (pressure.py's _solve_serially; not that name: it takes
+        other arguments)."""
         out = ti.Vector([0, 0], dt=ti.i64)
         ti.loop_config(serialize=True)
         for _ in range(1):
