@@ -226,6 +226,36 @@ def test_a_small_liquids_one_launch_solve_stops_where_a_launch_per_iteration_doe
         assert e / ERROR_SCALE / n > tol and not (e - 1) / ERROR_SCALE / n > tol
 
 
+def test_the_walls_cells_flags_mark_every_cell_within_reach_of_a_wall_sample():
+    """A particle skips the walls' grid scan where its cell's flag is 0 (dfsph.py, wall_near): the flags
+    are exactly the cells within two cells of a sample on every axis (the block _near scans), against
+    a NumPy marking; and the first neighbourhood pass counts the same wall samples as scanning always."""
+    from taichi_anim.scenes import dam_break
+
+    scene = dam_break.build(per_width=6)
+    fluid = next(s for s in scene.integrator.stepper_for(scene.model).solvers if s.name == "fluid")
+    grid = fluid.boundary
+    dims = np.array(grid.dims)
+    x = grid.sorted_x.to_numpy()[: grid.size[None]]
+    cells = np.clip(np.floor((x - np.array(grid.lo)) * grid._inv_h).astype(int), 0, dims - 1)
+    expected = np.zeros(tuple(dims), bool)
+    for offset in np.stack(np.meshgrid(*[np.arange(-2, 3)] * 3, indexing="ij"), -1).reshape(-1, 3):
+        c = cells + offset
+        inside = np.all((c >= 0) & (c < dims), axis=1)
+        expected[tuple(c[inside].T)] = True
+    flags = fluid.wall_near.to_numpy().reshape(tuple(dims)) != 0
+    assert np.array_equal(flags, expected) and 0 < flags.sum() < flags.size
+    # every particle's wall samples, brute force over the samples against the pass's count
+    model, state = scene.model, scene.state
+    fluid._gather_positions(state, model)
+    fluid.grid.build(fluid.cx, model.fluid_count)
+    fluid._neighborhoods(state, model)
+    n = model.fluid_count
+    p = fluid.grid.sorted_x.to_numpy()[:n]
+    near = ((p[:, None, :] - x[None, :, :]) ** 2).sum(-1) < fluid.support**2
+    assert np.array_equal(fluid.bn.to_numpy()[:n], near.sum(1))
+
+
 def test_bad_fluid_input_is_refused():
     b = ta.Builder()
     with pytest.raises(ParameterError, match="add_fluid"):

@@ -115,6 +115,9 @@ class FluidDynamics(PressureSolves, FluidReport):
             bx.from_numpy(capacity.padded(samples, rows, np_float()))
             self.boundary.build(bx, self.boundary_count)
             self.boundary_psi = make(self, "fluid_boundary_psi", float, rows)
+            # Per cell of the walls' grid: whether a sample lies in the 5^3 cells _near scans from it
+            # (_volumes marks them), so that a particle away from every wall skips that scan.
+            self.wall_near = make(self, "fluid_wall_near", ti.i32, self.boundary.cell_count)
             self._volumes(self.boundary, self.boundary_psi, False)
         # Rigid bodies and cloth in the liquid: samples on their surfaces, moving with them, and a grid
         # over them built every substep (bodies.py).
@@ -358,7 +361,8 @@ class FluidDynamics(PressureSolves, FluidReport):
             acc = self._sums(n=0, bn=0, mb=0, rho=rho, g=zero, sq=0.0, wg=zero)
             self._near(self.grid, k, xi, self._add_fluid, acc)
             if ti.static(self.walls):
-                self._near(self.boundary, k, xi, self._add_boundary, acc)
+                if self.wall_near[self.boundary.key(self.boundary.coords(xi))]:
+                    self._near(self.boundary, k, xi, self._add_boundary, acc)
             if ti.static(self.coupled):
                 self._near(self.body_grid, k, xi, self._add_body, acc)
                 self.body_n[k] = acc.mb
@@ -462,7 +466,17 @@ class FluidDynamics(PressureSolves, FluidReport):
     def _volumes(self, grid: ti.template(), psi: ti.template(), by_sample: ti.template()):
         """psi_b = share rho0 / sum_b' W_bb' over the samples of `grid` (Akinci et al. 2012, eq. 4-5,
         scaled as the walls' comment in __init__ says), into psi by slot (the walls, read by slot) or by
-        sample (the bodies, whose grid is rebuilt every substep)."""
+        sample (the bodies, whose grid is rebuilt every substep). For the walls, also wall_near: the
+        cells within two cells of a sample on every axis, the block _near scans around a point's cell."""
+        if ti.static(not by_sample):
+            for c in range(grid.cell_count):
+                self.wall_near[c] = 0
+            for b in range(grid.size[None]):
+                cell = grid.coords(grid.sorted_x[b])
+                for q in range(125):
+                    c = cell + ti.Vector([q // 25 - 2, (q // 5) % 5 - 2, q % 5 - 2])
+                    if (c >= 0).all() and (c < ti.Vector(grid.dims)).all():
+                        self.wall_near[grid.key(c)] = 1  # every writer writes 1: no atomic needed
         for b in range(grid.size[None]):
             acc = ti.cast(0.0, float)
             self._near(grid, b, grid.sorted_x[b], self._add_w, acc)
