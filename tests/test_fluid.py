@@ -197,10 +197,11 @@ def test_the_liquid_is_held_by_its_walls_alone(monkeypatch):
 
 @pytest.mark.parametrize("method", ["dfsph", "pbf"])
 def test_a_small_liquids_one_launch_solve_stops_where_a_launch_per_iteration_does(method):
-    """A small liquid solves in one launch (pressure.py, _solve_serially), comparing the errors' fixed-point
-    sum against the first sum whose mean exceeds the tolerance: the same iterations every step as the
-    launch-per-iteration loop, and the same positions to round-off (f64; the kernels are compiled
-    apart). And that first sum is exact: one less has its mean at or under the tolerance."""
+    """A small liquid alone runs each half of a substep in one launch, its solves iterating inside it
+    (serial_substep.py, pressure.py), comparing the errors' fixed-point sum against the first sum whose
+    mean exceeds the tolerance: the same iterations every step as a launch per pass and per iteration,
+    and the same positions to round-off (f64; the kernels are compiled apart). And that first sum is
+    exact: one less has its mean at or under the tolerance."""
     from taichi_anim.bodies.fluid.pressure import ERROR_SCALE, first_sum_above
     from taichi_anim.scenes import dam_break
 

@@ -208,6 +208,12 @@ class NeighborGrid(_NeighborSearch):
 
     @ti.kernel
     def _build(self, x: ti.template(), n: ti.i32, death: ti.template(), t: float, use_death: ti.template()):
+        self.build_pass(x, n, death, t, use_death)
+
+    @ti.func
+    def build_pass(self, x: ti.template(), n, death: ti.template(), t, use_death: ti.template()):
+        """_build's work, for a kernel that builds the grid among other passes (a small liquid's
+        substep, bodies/fluid/serial_substep.py)."""
         ti.loop_config(serialize=self._serial)
         for c in range(self.cell_count):
             self.cell_particles[c] = 0

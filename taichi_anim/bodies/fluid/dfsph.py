@@ -45,8 +45,9 @@ from ..rigid.quaternion import quat_matrix, world_inverse_inertia
 from . import surface_tension
 from .bodies import BodySamples, sphere_particles
 from .boundary import boundary_samples
-from .pressure import ERROR_SCALE, PressureSolves
+from .pressure import ERROR_SCALE, PressureSolves, first_sum_above
 from .report import FluidReport
+from .serial_substep import SerialSubstep
 from .sph_kernel import cubic_w, cubic_w_grad, lattice_sum
 
 FLUID_NEIGHBORS = 64  # listed fluid neighbours per particle (26 at rest; a compressed splash ~45)
@@ -58,13 +59,14 @@ FLUID_SERIAL_BELOW = 3000
 
 
 @data_oriented
-class FluidDynamics(PressureSolves, FluidReport):
+class FluidDynamics(PressureSolves, SerialSubstep, FluidReport):
     """The liquid's pressure solver (module docstring); built by the Stepper from `model.fluid`."""
 
     name = "fluid"
     # A small liquid's (serial) solve runs in one launch (_solve_serially); False: a launch per iteration
     # (tests compare the two).
     one_launch_solve = True
+    divergence_solve = True  # PBF has none
 
     def __init__(self, model, *, spacing, density, method, tolerance, divergence_tolerance, min_iterations,
                  max_iterations, viscosity, cfl, max_step, max_substeps, domain, mass,
@@ -183,6 +185,15 @@ class FluidDynamics(PressureSolves, FluidReport):
 
     def before_substep(self, model, state, h: float) -> None:
         """Neighbourhoods, densities and factors at the substep's start; the divergence solve."""
+        if self._two_launch_substep():  # a small liquid alone: one launch (serial_substep.py)
+            n = model.fluid_count
+            it, total = (int(c) for c in self._begin_serially(
+                state, model, n, h, first_sum_above(self.divergence_tolerance, n),
+                min(self.min_iterations, 1), self.max_iterations,
+            ))  # fmt: skip
+            mean = total / ERROR_SCALE / n if self.divergence_solve else 0.0
+            self.last = dict(divergence_iterations=it, divergence_error=mean)
+            return
         self._gather_positions(state, model)
         if self.emitted:  # the nozzles' unborn slots stay out of the grid, the solves run over its slots
             self.grid.build(self.cx, model.fluid_count, death=self.cdeath, t=float(state.time))
@@ -197,11 +208,19 @@ class FluidDynamics(PressureSolves, FluidReport):
 
     def after_substep(self, model, state, h: float, step: int) -> None:
         """XSPH, the density solve, then positions from the corrected velocities."""
-        self._gather_velocities(state, model, self.viscosity)
-        if self.surface_tension > 0.0:
-            self._surface_tension(h, self.surface_tension)
-        iterations, mean, worst = self._density_step(h, state)
-        self._finish(state, model, h, float(state.time + h))
+        if self._two_launch_substep():  # a small liquid alone: one launch (serial_substep.py)
+            n = model.fluid_count
+            it, total = (int(c) for c in self._end_serially(
+                state, model, h, float(state.time + h), self.viscosity, self.surface_tension,
+                first_sum_above(self.tolerance, n), self.min_iterations, self.max_iterations,
+            ))  # fmt: skip
+            iterations, mean, worst = it, total / ERROR_SCALE / n, float(self.err_max[None])
+        else:
+            self._gather_velocities(state, model, self.viscosity)
+            if self.surface_tension > 0.0:
+                self._surface_tension(h, self.surface_tension)
+            iterations, mean, worst = self._density_step(h, state)
+            self._finish(state, model, h, float(state.time + h))
         self.last.update(density_iterations=iterations, mean_density_error=mean, max_density_error=worst)
         t = self.totals
         t["steps"] += 1
@@ -245,6 +264,10 @@ class FluidDynamics(PressureSolves, FluidReport):
 
     @ti.kernel
     def _gather_positions(self, state: ti.template(), model: ti.template()):
+        self._gather_positions_pass(state, model)
+
+    @ti.func
+    def _gather_positions_pass(self, state: ti.template(), model: ti.template()):
         ti.loop_config(serialize=self.serial)
         for j in range(model.live_fluid()):
             p = model.fluid_particle[j]
@@ -348,6 +371,10 @@ class FluidDynamics(PressureSolves, FluidReport):
 
     @ti.kernel
     def _neighborhoods(self, state: ti.template(), model: ti.template()):
+        self._neighborhoods_pass(state, model)
+
+    @ti.func
+    def _neighborhoods_pass(self, state: ti.template(), model: ti.template()):
         """Each slot's neighbour list, density, factor alpha and velocity, in one pass over the cells;
         the density error these positions reached."""
         ti.loop_config(serialize=True)  # one iteration: a parallel loop would wake the thread pool
@@ -389,6 +416,10 @@ class FluidDynamics(PressureSolves, FluidReport):
 
     @ti.kernel
     def _write_velocities(self, state: ti.template(), model: ti.template(), h: float):
+        self._write_velocities_pass(state, model, h)
+
+    @ti.func
+    def _write_velocities_pass(self, state: ti.template(), model: ti.template(), h):
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             j = self.grid.sorted_id[k]
@@ -397,6 +428,10 @@ class FluidDynamics(PressureSolves, FluidReport):
 
     @ti.kernel
     def _gather_velocities(self, state: ti.template(), model: ti.template(), c: float):
+        self._gather_velocities_pass(state, model, c)
+
+    @ti.func
+    def _gather_velocities_pass(self, state: ti.template(), model: ti.template(), c):
         """v* from the method, smoothed by XSPH with the pair's mean density (Monaghan 1989, eq. 2.9):
         v_i += c sum_j (2 m / (rho_i + rho_j)) (v_j - v_i) W_ij, equal and opposite in every pair."""
         ti.loop_config(serialize=self.serial)
@@ -439,6 +474,10 @@ class FluidDynamics(PressureSolves, FluidReport):
     @compile_with(cfg_optimization=False)
     @ti.kernel
     def _finish(self, state: ti.template(), model: ti.template(), h: float, t: float):
+        self._finish_pass(state, model, h, t)
+
+    @ti.func
+    def _finish_pass(self, state: ti.template(), model: ti.template(), h, t):
         """x = x(start) + h v; colliders' and bodies' surfaces as a last guard (half a spacing away, where
         the liquid's volume ends); write back; record p and rho."""
         ti.loop_config(serialize=self.serial)

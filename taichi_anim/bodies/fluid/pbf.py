@@ -33,6 +33,8 @@ from .sph_kernel import cubic_w, cubic_w_grad
 class PositionBasedFluid(FluidDynamics):
     """The liquid's position-based solver (module docstring)."""
 
+    divergence_solve = False
+
     def __init__(self, model, **options):
         super().__init__(model, **options)
         n = model.fluid_capacity
@@ -90,16 +92,23 @@ class PositionBasedFluid(FluidDynamics):
         out = ti.Vector([0, 0], dt=ti.i64)
         ti.loop_config(serialize=True)
         for _ in range(1):
-            self._predict_positions_pass(h)
-            self._constraint_pass(h)
-            it = 0
-            while it < most and (self.err_sum[None] >= above or it < least):
-                self._project(h)
-                self._constraint_pass(h)
-                it += 1
-            self._velocities_pass(h)
+            it = self._density_pass(None, h, above, least, most)
             out = ti.Vector([it, self.err_sum[None]], dt=ti.i64)
         return out
+
+    @ti.func
+    def _density_pass(self, state: ti.template(), h, above, least, most):
+        """_constrain_serially's work inside a serial loop of the calling kernel (the state is not read);
+        returns the iterations."""
+        self._predict_positions_pass(h)
+        self._constraint_pass(h)
+        it = 0
+        while it < most and (self.err_sum[None] >= above or it < least):
+            self._project(h)
+            self._constraint_pass(h)
+            it += 1
+        self._velocities_pass(h)
+        return it
 
     @ti.func
     def _predict_positions_pass(self, h):

@@ -159,13 +159,24 @@ class PressureSolves:
         out = ti.Vector([0, 0], dt=ti.i64)
         ti.loop_config(serialize=True)
         for _ in range(1):
-            self._first_prediction(state, h, divergence)
-            it = 0
-            while it < most and (self.err_sum[None] >= above or it < least):
-                self._next_prediction(h, divergence)
-                it += 1
+            it = self._solve_pass(state, h, divergence, above, least, most)
             out = ti.Vector([it, self.err_sum[None]], dt=ti.i64)
         return out
+
+    @ti.func
+    def _solve_pass(self, state: ti.template(), h, divergence, above, least, most):
+        """_solve_serially's work, inside a serial loop of the calling kernel; returns the iterations."""
+        self._first_prediction(state, h, divergence)
+        it = 0
+        while it < most and (self.err_sum[None] >= above or it < least):
+            self._next_prediction(h, divergence)
+            it += 1
+        return it
+
+    @ti.func
+    def _density_pass(self, state: ti.template(), h, above, least, most):
+        """The density solve inside a serial loop (serial_substep.py); returns the iterations."""
+        return self._solve_pass(state, h, 0, above, least, most)
 
     @ti.func
     def _first_prediction(self, state: ti.template(), h, divergence):
