@@ -5,7 +5,8 @@ iterated until the mean error is under the tolerance. This mixin holds them, on 
 
 A solve is a launch for its warm start and first prediction and one per iteration, each returning the
 errors' fixed-point sum (2^-40 units: its atomic sum does not depend on thread timing), or, for a small
-liquid whose loops run serially, one launch for the whole solve (_solve_serially)."""
+liquid whose loops run serially, one launch for the whole solve (_solve_serially), or part of the
+substep's launch for a small liquid alone (serial_substep.py, through _solve_pass)."""
 
 import math
 
