@@ -43,7 +43,7 @@ class SerialSubstep:
         ti.loop_config(serialize=True)
         for _ in range(1):
             self._gather_positions_pass(state, model)
-            self.grid.build_pass(self.cx, n, self.grid._no_death, 0.0, False)
+            self.grid.build_pass(self.cx, n, None, 0.0, False)  # no death times: liquid alone
             self._neighborhoods_pass(state, model)
             if ti.static(self.divergence_solve):
                 it = self._solve_pass(state, h, 1, above, least, most)
