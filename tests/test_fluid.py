@@ -227,6 +227,37 @@ def test_a_small_liquids_one_launch_solve_stops_where_a_launch_per_iteration_doe
         assert e / ERROR_SCALE / n > tol and not (e - 1) / ERROR_SCALE / n > tol
 
 
+@pytest.mark.parametrize("method", ["dfsph", "pbf"])
+def test_a_poured_liquid_with_a_floating_box_takes_the_same_steps_in_two_launches(method):
+    """A small liquid with bodies and a nozzle runs its substeps in two launches too: the box's samples
+    placed, moved and pushed inside them, the live count known only there (the solves' thresholds read
+    from a table over every count). The same iterations, density errors and positions (particles and
+    box, to f64 round-off) as a launch per pass; and the table is first_sum_above's at every count."""
+    from taichi_anim.bodies.fluid.pressure import first_sum_above, first_sums_above
+    from taichi_anim.scenes import pour
+
+    runs = []
+    for one_launch in (True, False):
+        scene = pour.build(spacing=0.012, pour_time=0.3, method=method)
+        stepper = scene.integrator.stepper_for(scene.model)
+        fluid = next(s for s in stepper.solvers if s.name == "fluid")
+        assert fluid.serial and fluid.coupled and fluid.emitted
+        fluid.one_launch_solve = one_launch
+        stats = []
+        for _ in range(10):
+            scene.advance_frame()
+            f = fluid.frame_stats()
+            stats.append((f["steps"], f["divergence_iterations"], f["density_iterations"]))
+            stats.append(round(f["max_density_error"], 12))
+        box = scene.state.rigid_snapshot()
+        runs.append((stats, scene.state.positions(), np.concatenate([box.position, box.velocity], axis=1)))
+    assert runs[0][0] == runs[1][0]
+    assert np.abs(runs[0][1] - runs[1][1]).max() < 1e-9
+    assert np.abs(runs[0][2] - runs[1][2]).max() < 1e-9
+    table = first_sums_above(7.5e-4, 3000)
+    assert table[0] == 0 and all(table[n] == first_sum_above(7.5e-4, n) for n in (1, 2, 17, 999, 3000))
+
+
 def test_the_walls_cells_flags_mark_every_cell_within_reach_of_a_wall_sample():
     """A particle skips the walls' grid scan where its cell's flag is 0 (dfsph.py, wall_near): the flags
     are exactly the cells within two cells of a sample on every axis (the block _near scans), against

@@ -41,12 +41,13 @@ def build(
     speed: float = 0.5,
     box_density: float = 500.0,
     resolution: int = 64,
+    method: str = "dfsph",
 ) -> BlobScene:
     """A glass 6 cm in radius and 15 cm tall (walls 1.2 cm) holding 4 cm of water, under a nozzle 2
     spacings in radius 2 cm above its rim that pours at `speed` [m/s] from 0.2 s for `pour_time` [s]
     (to about two thirds of the glass at the defaults); a 4 cm box of `box_density` [kg/m^3] dropped
-    from 1 cm above the water; liquid `spacing` [m]; the surface's grid has `resolution` nodes across
-    the glass's height."""
+    from 1 cm above the water; liquid `spacing` [m] and solver `method` ("dfsph" or "pbf"); the surface's
+    grid has `resolution` nodes across the glass's height."""
     radius, height, wall = 0.06, 0.15, 0.012
     b = Builder()
     b.add_force_gravity()
@@ -54,7 +55,7 @@ def build(
     b.add_collider_mesh(glass, restitution=0.0)
     b.add_collider_plane((0.0, 1.0, 0.0), 0.0, restitution=0.0)  # the table the glass stands on
     lo, hi = np.array([-radius, 0.0, -radius]), np.array([radius, height + 0.03, radius])
-    b.add_fluid(spacing=spacing, domain=(lo, hi))
+    b.add_fluid(spacing=spacing, domain=(lo, hi), method=method)
     inner, level = radius - wall, wall + 0.04
     b.add_fluid_mesh(revolve_mesh([(0.0, wall), (inner, wall), (inner, level), (0.0, level)], 48))
     b.add_fluid_emitter(center=(0.02, height + 0.02, 0.0), radius=2 * spacing, speed=speed,
@@ -69,7 +70,13 @@ def build(
         bounds=(lo, hi),
         resolution=resolution,
         description=f"water poured into a glass ({model.fluid_count} particles at most), a box floating up",
-        options={"spacing": spacing, "pour_time": pour_time, "speed": speed, "box_density": box_density},
+        options={
+            "spacing": spacing,
+            "pour_time": pour_time,
+            "speed": speed,
+            "box_density": box_density,
+            "method": method,
+        },
         frames=120,
         view=VIEW,
         props=[back_half(glass, VIEW)],  # drawn only: the half away from the camera, so the water shows

@@ -174,6 +174,11 @@ class BodySamples:
     @ti.kernel
     def place(self, model: ti.template(), state: ti.template()):
         """World positions and velocities of the samples from the bodies' poses and the particles now."""
+        self.place_pass(model, state)
+
+    @ti.func
+    def place_pass(self, model: ti.template(), state: ti.template()):
+        """place's work, for a kernel that runs it among other passes (serial_substep.py)."""
         for s in range(self.count):
             b = self.owner[s]
             if b >= 0:
@@ -189,6 +194,11 @@ class BodySamples:
     def move(self, model: ti.template(), state: ti.template()):
         """The samples' velocities from the bodies' and particles' velocities now (positions stay the
         substep's start)."""
+        self.move_pass(model, state)
+
+    @ti.func
+    def move_pass(self, model: ti.template(), state: ti.template()):
+        """move's work, for a kernel that runs it among other passes (serial_substep.py)."""
         for s in range(self.count):
             b = self.owner[s]
             if b >= 0:

@@ -45,7 +45,7 @@ from ..rigid.quaternion import quat_matrix, world_inverse_inertia
 from . import surface_tension
 from .bodies import BodySamples, sphere_particles
 from .boundary import boundary_samples
-from .pressure import ERROR_SCALE, PressureSolves, first_sum_above
+from .pressure import ERROR_SCALE, PressureSolves
 from .report import FluidReport
 from .serial_substep import SerialSubstep
 from .sph_kernel import cubic_w, cubic_w_grad, lattice_sum
@@ -161,10 +161,12 @@ class FluidDynamics(PressureSolves, SerialSubstep, FluidReport):
         self.emitted = model.emitter_count > 0
         if self.emitted:
             self.cdeath = f("fluid_cdeath")
+        if self.serial:  # the solves' thresholds per live count (serial_substep.py)
+            self.sum_above = f("fluid_sum_above", ti.i64, shape=(2, n + 1))
+            self._thresholds_for = None
         vec = ti.types.vector(3, float)  # made after ti.init: `float` is the chosen precision
         self._sums = ti.types.struct(n=ti.i32, bn=ti.i32, mb=ti.i32, rho=float, g=vec, sq=float, wg=vec)
-        self.overflow[None] = 0
-        self.reached[None] = [0.0, 0.0, 0.0, 0.0]
+        self._clear_counts()
         self.totals = dict(steps=0, density_iterations=0, divergence_iterations=0, unconverged_steps=0,
                            mean_error_max=0.0, max_error_max=0.0)  # fmt: skip
         self._frame: list[dict] = []
@@ -176,8 +178,7 @@ class FluidDynamics(PressureSolves, SerialSubstep, FluidReport):
         """CFL: the fewest equal substeps h = dt / n in which no particle moves more than cfl spacings,
         h (v_max + g h) <= cfl d (Bender & Koschier 2017, eq. 13, with the speed gravity adds over the
         substep), none longer than max_step."""
-        self._max_speed(state, model)
-        v, reach = float(self.speed[None]), self.cfl * self.spacing
+        v, reach = float(self._max_speed(state, model)), self.cfl * self.spacing
         n = max(math.ceil(dt / self.max_step - 1e-9), 1)
         while n < self.max_substeps and (dt / n) * (v + self.gravity * dt / n) > reach:
             n += 1
@@ -185,13 +186,13 @@ class FluidDynamics(PressureSolves, SerialSubstep, FluidReport):
 
     def before_substep(self, model, state, h: float) -> None:
         """Neighbourhoods, densities and factors at the substep's start; the divergence solve."""
-        if self._two_launch_substep():  # a small liquid alone: one launch (serial_substep.py)
-            n = model.fluid_count
-            it, total = (int(c) for c in self._begin_serially(
-                state, model, n, h, first_sum_above(self.divergence_tolerance, n),
-                min(self.min_iterations, 1), self.max_iterations,
+        if self._two_launch_substep():  # a small liquid: one launch (serial_substep.py)
+            self._thresholds(model)
+            it, total, n = (int(c) for c in self._begin_serially(
+                state, model, model.fluid_count, float(state.time), h, min(self.min_iterations, 1),
+                self.max_iterations,
             ))  # fmt: skip
-            mean = total / ERROR_SCALE / n if self.divergence_solve else 0.0
+            mean = total / ERROR_SCALE / n if self.divergence_solve and n else 0.0
             self.last = dict(divergence_iterations=it, divergence_error=mean)
             return
         self._gather_positions(state, model)
@@ -208,13 +209,15 @@ class FluidDynamics(PressureSolves, SerialSubstep, FluidReport):
 
     def after_substep(self, model, state, h: float, step: int) -> None:
         """XSPH, the density solve, then positions from the corrected velocities."""
-        if self._two_launch_substep():  # a small liquid alone: one launch (serial_substep.py)
-            n = model.fluid_count
-            it, total = (int(c) for c in self._end_serially(
+        if self._two_launch_substep():  # a small liquid: one launch (serial_substep.py)
+            self._thresholds(model)
+            counts, worst = self._end_serially(
                 state, model, h, float(state.time + h), self.viscosity, self.surface_tension,
-                first_sum_above(self.tolerance, n), self.min_iterations, self.max_iterations,
-            ))  # fmt: skip
-            iterations, mean, worst = it, total / ERROR_SCALE / n, float(self.err_max[None])
+                self.min_iterations, self.max_iterations,
+            )  # fmt: skip
+            iterations, total, n = (int(c) for c in counts)
+            mean = total / ERROR_SCALE / n if n else 0.0
+            worst = float(worst)
         else:
             self._gather_velocities(state, model, self.viscosity)
             if self.surface_tension > 0.0:
@@ -256,11 +259,19 @@ class FluidDynamics(PressureSolves, SerialSubstep, FluidReport):
     # --- gathering and scattering ----------------------------------------------------------------
 
     @ti.kernel
-    def _max_speed(self, state: ti.template(), model: ti.template()):
+    def _max_speed(self, state: ti.template(), model: ti.template()) -> float:
         self.speed[None] = 0.0
         ti.loop_config(serialize=self.serial)
         for j in range(model.live_fluid()):  # unborn nozzle slots rest: their speed is 0
             ti.atomic_max(self.speed[None], state.particle_v[model.fluid_particle[j]].norm())
+        return self.speed[None]
+
+    # One launch: Python-scope writes are a writer kernel per field and per component (five here), each
+    # compiled with an empty cache (about 17 ms).
+    @ti.kernel
+    def _clear_counts(self):
+        self.overflow[None] = 0
+        self.reached[None] = ti.Vector([0.0, 0.0, 0.0, 0.0], dt=float)
 
     @ti.kernel
     def _gather_positions(self, state: ti.template(), model: ti.template()):
@@ -339,6 +350,10 @@ class FluidDynamics(PressureSolves, SerialSubstep, FluidReport):
     def _push_bodies(self, model: ti.template(), state: ti.template(), h: float):
         """Each pair's pressure correction of a particle, given back to the body at the sample:
         J = m_i h kappa_i psi_b grad W_ib (summed over the solve's iterations), in particle order."""
+        self._push_bodies_pass(model, state, h)
+
+    @ti.func
+    def _push_bodies_pass(self, model: ti.template(), state: ti.template(), h):
         rigid = ti.static(self.bodies.has_rigid)
         if ti.static(rigid):
             ti.loop_config(serialize=True)

@@ -101,10 +101,10 @@ class PositionBasedFluid(FluidDynamics):
         """_constrain_serially's work inside a serial loop of the calling kernel (the state is not read);
         returns the iterations."""
         self._predict_positions_pass(h)
-        self._constraint_pass(h)
-        it = 0
-        while it < most and (self.err_sum[None] >= above or it < least):
-            self._project(h)
+        it = -1  # -1: the constraints at the predicted positions (one copy: pressure.py's _solve_pass)
+        while it < 0 or (it < most and (self.err_sum[None] >= above or it < least)):
+            if it >= 0:
+                self._project(h)
             self._constraint_pass(h)
             it += 1
         self._velocities_pass(h)

@@ -10,6 +10,7 @@ substep's launch for a small liquid alone (serial_substep.py, through _solve_pas
 
 import math
 
+import numpy as np
 import taichi as ti
 
 from ...runtime import data_oriented
@@ -27,6 +28,25 @@ def first_sum_above(tolerance: float, count: int) -> int:
     while not e / ERROR_SCALE / count > tolerance:
         e += 1
     return e
+
+
+def first_sums_above(tolerance: float, count: int) -> np.ndarray:
+    """first_sum_above(tolerance, n) for n = 0 .. count (0 at n = 0, where no solve runs), the same
+    float64 operations on every element: the thresholds a kernel looks up when the live count is known
+    only inside it (a liquid fed by nozzles, serial_substep.py)."""
+    n = np.arange(1, count + 1, dtype=np.float64)
+    e = np.floor(tolerance * ERROR_SCALE * n)
+    while True:
+        high = (e > 0) & (e / ERROR_SCALE / n > tolerance)
+        if not high.any():
+            break
+        e[high] -= 1
+    while True:
+        low = ~(e / ERROR_SCALE / n > tolerance)
+        if not low.any():
+            break
+        e[low] += 1
+    return np.concatenate([[0], e]).astype(np.int64)
 
 
 # Warm starts: the share of the last step's summed stiffness a solve starts from. A kappa summed over
@@ -166,11 +186,20 @@ class PressureSolves:
 
     @ti.func
     def _solve_pass(self, state: ti.template(), h, divergence, above, least, most):
-        """_solve_serially's work, inside a serial loop of the calling kernel; returns the iterations."""
-        self._first_prediction(state, h, divergence)
-        it = 0
-        while it < most and (self.err_sum[None] >= above or it < least):
-            self._next_prediction(h, divergence)
+        """_solve_serially's work, inside a serial loop of the calling kernel; returns the iterations.
+        The first prediction and the iterations share one copy of the correction and the prediction
+        (the warm start's correction is the first pass's, skipped where _first_prediction skips it):
+        the same operations in the same order as _first_prediction then _next_prediction, in half the
+        code to compile."""
+        self._warm_start(state, h, divergence)
+        apply = ti.static(WARM_DIVERGENCE > 0.0) or not divergence
+        it = -1  # -1: the first prediction
+        while it < 0 or (it < most and (self.err_sum[None] >= above or it < least)):
+            self._correct(h, apply)
+            self.err_sum[None] = 0
+            self.err_max[None] = 0.0
+            self._predict(h, divergence)
+            apply = True
             it += 1
         return it
 
@@ -182,6 +211,15 @@ class PressureSolves:
     @ti.func
     def _first_prediction(self, state: ti.template(), h, divergence):
         """Warm start from a share of the last step's stiffness, then the first prediction."""
+        self._warm_start(state, h, divergence)
+        self._correct(h, ti.static(WARM_DIVERGENCE > 0.0) or not divergence)
+        self.err_sum[None] = 0
+        self.err_max[None] = 0.0
+        self._predict(h, divergence)
+
+    @ti.func
+    def _warm_start(self, state: ti.template(), h, divergence):
+        """Each slot's kappa from a share of the last step's stiffness (kacc, the sum, cleared)."""
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             j = self.grid.sorted_id[k]
@@ -196,10 +234,6 @@ class PressureSolves:
                 self.kappa[k] = 0.0
                 if self.rho[k] + h * self._flux(k) > self.rest_density:
                     self.kappa[k] = WARM_DENSITY * state.fluid_kappa[j] / (h * h)
-        self._correct(h, ti.static(WARM_DIVERGENCE > 0.0) or not divergence)
-        self.err_sum[None] = 0
-        self.err_max[None] = 0.0
-        self._predict(h, divergence)
 
     @ti.func
     def _next_prediction(self, h, divergence):
