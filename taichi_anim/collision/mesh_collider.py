@@ -36,7 +36,7 @@ import numpy as np
 import taichi as ti
 from taichi.lang import impl
 
-from .. import bulk, capacity, validate
+from .. import capacity, validate
 from ..errors import ParameterError
 from ..geometry import load_mesh
 from ..runtime import data_oriented, np_float
@@ -210,7 +210,6 @@ class ColliderMesh(Collider):
         if self.buckets:
             self.live = make(self, "mesh_collider_live", ti.i32, (), (2,))
             self.live[None] = (self.vertex_count, self.face_count)
-        self.mesh = TriangleMesh(self.vertices, self.faces, vertex_capacity=cv, face_capacity=cf, make=make)
         vec3 = ti.types.vector(3, float)
         self._hit_type = ti.types.struct(dist2=float, face=ti.i32, w=vec3)
         self.face_adj = make(self, "mesh_collider_face_adj", ti.i32, cf, (3,))
@@ -220,12 +219,13 @@ class ColliderMesh(Collider):
         self.vertex_face_start = make(self, "mesh_collider_vertex_face_start", ti.i32, cv + 1)
         starts = np.concatenate([[0], np.cumsum(counts)])
         self.vertex_faces = make(self, "mesh_collider_vertex_faces", ti.i32, 3 * cf)
-        bulk.fill(  # one launch: from_numpy is a kernel per field (bulk.py)
-            [
-                (self.face_adj, capacity.padded(self.adjacency, cf, np.int32)),
-                (self.vertex_face_start, capacity.padded(starts, cv + 1, np.int32)),
-                (self.vertex_faces, capacity.padded(order // 3, 3 * cf, np.int32)),
-            ]
+        own = [  # written with the mesh's arrays: one launch (from_numpy is a kernel per field, bulk.py)
+            (self.face_adj, capacity.padded(self.adjacency, cf, np.int32)),
+            (self.vertex_face_start, capacity.padded(starts, cv + 1, np.int32)),
+            (self.vertex_faces, capacity.padded(order // 3, 3 * cf, np.int32)),
+        ]
+        self.mesh = TriangleMesh(
+            self.vertices, self.faces, vertex_capacity=cv, face_capacity=cf, make=make, fill_also=own
         )
         self.vertex_n = make(self, "mesh_collider_vertex_n", float, cv, (3,))
         self.vertex_n0 = make(self, "mesh_collider_vertex_n0", float, cv, (3,)) if self.deforming else None

@@ -192,9 +192,11 @@ class TriangleMesh:
         vertex_capacity: int | None = None,
         face_capacity: int | None = None,
         make=plain,
+        fill_also=(),
     ):
         """make(owner, role, dtype, shape, dims): the allocator of its fields (a model's pool under capacity
-        buckets, capacity.py; default: new fields)."""
+        buckets, capacity.py; default: new fields). fill_also: the owner's own (field, array) pairs, written
+        in the same launch as the mesh's arrays (bulk.fill)."""
         v, f = check_mesh(vertices, faces)
         self.vertex_capacity = validate.count("vertex_capacity", vertex_capacity or len(v), 1)
         self.face_capacity = validate.count("face_capacity", face_capacity or len(f), 1)
@@ -208,22 +210,22 @@ class TriangleMesh:
         self._types = _query_types()
         self.vertex_count = 0
         self.face_count = 0
-        self.set_mesh(v, f)
+        self.set_mesh(v, f, fill_also)
 
-    def set_mesh(self, vertices, faces) -> None:
-        """Replace the mesh (within the capacities) and rebuild the tree."""
+    def set_mesh(self, vertices, faces, fill_also=()) -> None:
+        """Replace the mesh (within the capacities) and rebuild the tree (fill_also: as the constructor's)."""
         v, f = check_mesh(vertices, faces)
         if len(v) > self.vertex_capacity:
             raise ParameterError(f"vertices: {len(v)} exceed vertex_capacity {self.vertex_capacity}")
         if len(f) > self.face_capacity:
             raise ParameterError(f"faces: {len(f)} exceed face_capacity {self.face_capacity}")
         self.vertex_count, self.face_count = len(v), len(f)
-        self.face_count_field[None] = self.face_count
         # one launch: from_numpy is a kernel per field (bulk.py)
         bulk.fill(
             [
                 (self.vertex_x, _pad(v, self.vertex_capacity)),
                 (self.face_vertices, _pad(f, self.face_capacity)),
+                *fill_also,
             ]
         )
         self._boxes(self.face_count)
@@ -248,6 +250,9 @@ class TriangleMesh:
 
     @ti.kernel
     def _boxes(self, n: ti.i32):
+        """The faces' boxes, after a new mesh of n faces (whose count it records: a Python-scope write
+        would be a writer kernel of its own, compiled with an empty cache)."""
+        self.face_count_field[None] = n
         self._face_boxes(n)
 
     @ti.kernel
