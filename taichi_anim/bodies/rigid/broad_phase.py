@@ -40,8 +40,7 @@ class BroadPhase:
         self.pair_a = make(self, "bp_a", ti.i32, self.pair_capacity)  # as swept: a < b
         self.pair_raw = make(self, "bp_raw", ti.i32, self.pair_capacity)
         self.pair_b = make(self, "bp_b", ti.i32, self.pair_capacity)  # partners, by a then b
-        self.pairs_found = make(self, "bp_found", ti.i32, ())
-        self.sweep_sorted[None] = 0
+        self.pairs_found = make(self, "bp_found", ti.i32, ())  # sweep_sorted: 0 from RigidContacts._start
 
     @ti.func
     def _sweep(self, model: ti.template(), state: ti.template(), h):
