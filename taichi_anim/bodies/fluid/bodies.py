@@ -21,7 +21,7 @@ import taichi as ti
 
 from ... import bulk
 from ...rotations import quat_to_matrix
-from ...runtime import data_oriented, np_float
+from ...runtime import data_oriented
 from ..rigid.quaternion import quat_matrix
 from .boundary import mesh_samples
 
@@ -127,7 +127,7 @@ class BodySamples:
         self.owner = make(self, "fluid_body_owner", ti.i32, n)
         self.corners = make(self, "fluid_body_corners", ti.i32, n, (3,))
         self.weights = make(self, "fluid_body_weights", float, n, (3,))
-        self.psi = make(self, "fluid_body_psi", float, n)  # filled by the solver (_volumes)
+        self.psi = make(self, "fluid_body_psi", float, n)  # filled by the solver (_volumes_pass)
         self.x = make(self, "fluid_body_x", float, n, (3,))  # world, at the substep's start
         self.v = make(self, "fluid_body_v", float, n, (3,))
         zeros = np.zeros((len(rest), 3))
@@ -157,7 +157,7 @@ class BodySamples:
         x[:, 0] += step * self._group
         # From the pool: a new field would compile the grid's build again for the next scene in a process.
         field = self._make(self, "fluid_body_apart", float, self.count, (3,))
-        field.from_numpy(x.astype(np_float()))
+        bulk.fill([(field, x)])  # with the caller's other arrays, in an open bulk.batch()
         return field, x.min(axis=0) - reach, x.max(axis=0) + reach
 
     @ti.func

@@ -36,7 +36,7 @@ import math
 import numpy as np
 import taichi as ti
 
-from ... import capacity
+from ... import bulk, capacity
 from ...collision.neighbors import NeighborGrid
 from ...runtime import backend_name, compile_with, data_oriented, np_float
 from ..rigid.dynamics import body_acceleration
@@ -108,30 +108,33 @@ class FluidDynamics(PressureSolves, SerialSubstep, FluidReport):
         self.boundary_count = len(samples)
         self.walls = self.boundary_count > 0  # compile-time: kernels visit boundary samples only if any
         self.boundary = None
-        if self.boundary_count:
-            # Under buckets the samples' rows are a bucket too: a mesh collider of another size in its
-            # buckets (mesh_collider.py) then compiles no kernel of the liquid's either.
-            rows = capacity.bucket(self.boundary_count) if model.size_buckets else self.boundary_count
-            self.boundary = NeighborGrid(rows, 0.5 * self.support, domain=grow, make=make)
-            bx = make(self, "fluid_boundary_x", float, rows, (3,))
-            bx.from_numpy(capacity.padded(samples, rows, np_float()))
-            self.boundary.build(bx, self.boundary_count)
-            self.boundary_psi = make(self, "fluid_boundary_psi", float, rows)
-            # Per cell of the walls' grid: whether a sample lies in the 5^3 cells _near scans from it
-            # (_volumes marks them), so that a particle away from every wall skips that scan.
-            self.wall_near = make(self, "fluid_wall_near", ti.i32, self.boundary.cell_count)
-            self._volumes(self.boundary, self.boundary_psi, False)
-        # Rigid bodies and cloth in the liquid: samples on their surfaces, moving with them, and a grid
-        # over them built every substep (bodies.py).
-        self.coupled = model.rigid_count > 0 or model.triangle_count > 0 or len(sphere_particles(model)) > 0
-        if self.coupled:
-            self.bodies = BodySamples(model, self.spacing, make)
-            # Each body's samples apart from the others' (its own volumes only), in one grid.
-            apart, lo, hi = self.bodies.apart(self.support)
-            grid = NeighborGrid(self.bodies.count, 0.5 * self.support, domain=(lo, hi), make=make)
-            grid.build(apart)
-            self._volumes(grid, self.bodies.psi, True)
-            self.body_grid = NeighborGrid(self.bodies.count, 0.5 * self.support, domain=grow, make=make)
+        bx = apart = apart_grid = None
+        # The walls' samples and the bodies' arrays in one fill launch, then their grids and volumes in one
+        # kernel (_setup): a from_numpy, grid build or volume pass is a kernel of its own to compile.
+        with bulk.batch():
+            if self.boundary_count:
+                # Under buckets the samples' rows are a bucket too: a mesh collider of another size in its
+                # buckets (mesh_collider.py) then compiles no kernel of the liquid's either.
+                rows = capacity.bucket(self.boundary_count) if model.size_buckets else self.boundary_count
+                self.boundary = NeighborGrid(rows, 0.5 * self.support, domain=grow, make=make)
+                bx = make(self, "fluid_boundary_x", float, rows, (3,))
+                bulk.fill([(bx, capacity.padded(samples, rows, np_float()))])
+                self.boundary_psi = make(self, "fluid_boundary_psi", float, rows)
+                # Per cell of the walls' grid: whether a sample lies in the 5^3 cells _near scans from it
+                # (_volumes_pass marks them), so that a particle away from every wall skips that scan.
+                self.wall_near = make(self, "fluid_wall_near", ti.i32, self.boundary.cell_count)
+            # Rigid bodies and cloth in the liquid: samples on their surfaces, moving with them, and a grid
+            # over them built every substep (bodies.py).
+            self.coupled = (
+                model.rigid_count > 0 or model.triangle_count > 0 or len(sphere_particles(model)) > 0
+            )
+            if self.coupled:
+                self.bodies = BodySamples(model, self.spacing, make)
+                # Each body's samples apart from the others' (its own volumes only), in one grid.
+                apart, lo, hi = self.bodies.apart(self.support)
+                apart_grid = NeighborGrid(self.bodies.count, 0.5 * self.support, domain=(lo, hi), make=make)
+                self.body_grid = NeighborGrid(self.bodies.count, 0.5 * self.support, domain=grow, make=make)
+        self._setup(bx, self.boundary_count, apart, self.bodies.count if self.coupled else 0, apart_grid)
         f = lambda role, dtype=float, dims=(), shape=n: make(self, role, dtype, shape, dims)  # noqa: E731
         self.cx, self.sv, self.sv2 = (f(f"fluid_{r}", dims=(3,)) for r in ("cx", "sv", "sv2"))
         self.rho, self.alpha, self.kappa, self.kacc = (f(f"fluid_{r}") for r in ("rho", "alpha", "k", "kacc"))
@@ -517,7 +520,19 @@ class FluidDynamics(PressureSolves, SerialSubstep, FluidReport):
             state.fluid_pressure[j] = self.kacc[k] * self.rho[k] * self.rho[k]
 
     @ti.kernel
-    def _volumes(self, grid: ti.template(), psi: ti.template(), by_sample: ti.template()):
+    def _setup(self, bx: ti.template(), walls: ti.i32, apart: ti.template(), samples: ti.i32,
+               apart_grid: ti.template()):  # fmt: skip
+        """The walls' grid over their `walls` samples bx and their volumes; the bodies' `samples`, each
+        body's apart from the others' (bodies.apart), in apart_grid, and their volumes."""
+        if ti.static(self.walls):
+            self.boundary.build_pass(bx, walls, None, 0.0, False)
+            self._volumes_pass(self.boundary, self.boundary_psi, False)
+        if ti.static(self.coupled):
+            apart_grid.build_pass(apart, samples, None, 0.0, False)
+            self._volumes_pass(apart_grid, self.bodies.psi, True)
+
+    @ti.func
+    def _volumes_pass(self, grid: ti.template(), psi: ti.template(), by_sample: ti.template()):
         """psi_b = share rho0 / sum_b' W_bb' over the samples of `grid` (Akinci et al. 2012, eq. 4-5,
         scaled as the walls' comment in __init__ says), into psi by slot (the walls, read by slot) or by
         sample (the bodies, whose grid is rebuilt every substep). For the walls, also wall_near: the
