@@ -164,7 +164,7 @@ class FluidDynamics(PressureSolves, SerialSubstep, FluidReport):
         self.emitted = model.emitter_count > 0
         if self.emitted:
             self.cdeath = f("fluid_cdeath")
-        if self.serial:  # the solves' thresholds per live count (serial_substep.py)
+        if self.serial and self.emitted:  # the solves' thresholds per live count (serial_substep.py)
             self.sum_above = f("fluid_sum_above", ti.i64, shape=(2, n + 1))
             self._thresholds_for = None
         vec = ti.types.vector(3, float)  # made after ti.init: `float` is the chosen precision
@@ -190,9 +190,9 @@ class FluidDynamics(PressureSolves, SerialSubstep, FluidReport):
     def before_substep(self, model, state, h: float) -> None:
         """Neighbourhoods, densities and factors at the substep's start; the divergence solve."""
         if self._two_launch_substep():  # a small liquid: one launch (serial_substep.py)
-            self._thresholds(model)
+            above = self._thresholds(model, self.divergence_tolerance)
             it, total, n = (int(c) for c in self._begin_serially(
-                state, model, model.fluid_count, float(state.time), h, min(self.min_iterations, 1),
+                state, model, model.fluid_count, float(state.time), h, above, min(self.min_iterations, 1),
                 self.max_iterations,
             ))  # fmt: skip
             mean = total / ERROR_SCALE / n if self.divergence_solve and n else 0.0
@@ -213,10 +213,9 @@ class FluidDynamics(PressureSolves, SerialSubstep, FluidReport):
     def after_substep(self, model, state, h: float, step: int) -> None:
         """XSPH, the density solve, then positions from the corrected velocities."""
         if self._two_launch_substep():  # a small liquid: one launch (serial_substep.py)
-            self._thresholds(model)
             counts, worst = self._end_serially(
                 state, model, h, float(state.time + h), self.viscosity, self.surface_tension,
-                self.min_iterations, self.max_iterations,
+                self._thresholds(model, self.tolerance), self.min_iterations, self.max_iterations,
             )  # fmt: skip
             iterations, total, n = (int(c) for c in counts)
             mean = total / ERROR_SCALE / n if n else 0.0

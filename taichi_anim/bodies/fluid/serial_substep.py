@@ -10,7 +10,7 @@ path runs, in the same order (a solve's bodies' samples moved before it and its 
 after it), so a step gives the same iterations (the solves stop where first_sum_above says, pressure.py)
 and the same arithmetic. A liquid fed by nozzles knows how many of its particles live only once the
 grid is built, inside the launch: its solves read their thresholds from a table over every count
-(first_sums_above), rewritten when a tolerance changes.
+(first_sums_above), rewritten when a tolerance changes; the others get theirs as arguments.
 
 The pour demo's liquid (a nozzle, a floating box) ran 11 kernels and read four fields per substep
 before: 26.8 -> 19.3 ms a frame (60 frames, 3 alternating runs each). Its compile, with an empty cache
@@ -21,7 +21,7 @@ import taichi as ti
 
 from ...runtime import compile_with, data_oriented
 from . import surface_tension
-from .pressure import first_sums_above
+from .pressure import first_sum_above, first_sums_above
 
 
 @data_oriented
@@ -32,9 +32,13 @@ class SerialSubstep:
         """Whether this liquid's substeps run in two launches (the module's docstring)."""
         return self.serial and self.one_launch_solve
 
-    def _thresholds(self, model) -> None:
-        """The solves' thresholds per live count (row 0 the density solve's, row 1 the divergence
-        solve's), written when a tolerance changed since they were."""
+    def _thresholds(self, model, tolerance: float) -> int:
+        """The solve's threshold for the liquid's count (first_sum_above); for a liquid fed by nozzles,
+        whose live count only the launch knows, 0, and the table of both solves' thresholds over every
+        count (row 0 the density solve's, row 1 the divergence solve's) is written if a tolerance changed
+        since it was."""
+        if not self.emitted:
+            return first_sum_above(tolerance, model.fluid_count)
         key = (self.tolerance, self.divergence_tolerance)
         if self._thresholds_for != key:
             n = model.fluid_count
@@ -43,17 +47,20 @@ class SerialSubstep:
             table[1, : n + 1] = first_sums_above(self.divergence_tolerance, n)
             self.sum_above.from_numpy(table)
             self._thresholds_for = key
+        return 0
 
     @ti.func
     def _solve_with_bodies(self, state: ti.template(), model: ti.template(), h, divergence: ti.template(), n,
-                           least, most):  # fmt: skip
+                           above, least, most):  # fmt: skip
         """pressure.py's _solve inside the launch: the bodies' samples moved, the divergence or the density
-        solve, their impulses given back; nothing when no particle lives. Returns the iterations."""
+        solve (to the threshold `above`, or the table's for n live particles), their impulses given back;
+        nothing when no particle lives. Returns the iterations."""
         it = 0
         if n > 0:
             if ti.static(self.coupled):
                 self.bodies.move_pass(model, state)
-            above = self.sum_above[int(divergence), n]
+            if ti.static(self.emitted):
+                above = self.sum_above[int(divergence), n]
             if ti.static(divergence):
                 it = self._solve_pass(state, h, 1, above, least, most)
             else:
@@ -77,6 +84,7 @@ class SerialSubstep:
         count: ti.i32,
         t: float,
         h: float,
+        above: ti.i64,
         least: ti.i32,
         most: ti.i32,
     ) -> ti.types.vector(3, ti.i64):
@@ -96,7 +104,7 @@ class SerialSubstep:
             self._neighborhoods_pass(state, model)
             n = self._live()
             if ti.static(self.divergence_solve):
-                it = self._solve_with_bodies(state, model, h, True, n, least, most)
+                it = self._solve_with_bodies(state, model, h, True, n, above, least, most)
                 self._write_velocities_pass(state, model, h)
                 out = ti.Vector([it, self.err_sum[None], n], dt=ti.i64)
             else:
@@ -114,6 +122,7 @@ class SerialSubstep:
         t: float,
         viscosity: float,
         gamma: float,
+        above: ti.i64,
         least: ti.i32,
         most: ti.i32,
     ) -> (ti.types.vector(3, ti.i64), float):
@@ -128,7 +137,7 @@ class SerialSubstep:
                 surface_tension.normals(self)
                 surface_tension.accelerate(self, h, gamma)
             n = self._live()
-            it = self._solve_with_bodies(state, model, h, False, n, least, most)
+            it = self._solve_with_bodies(state, model, h, False, n, above, least, most)
             self._finish_pass(state, model, h, t)
             out = ti.Vector([it, self.err_sum[None], n], dt=ti.i64)
             if n > 0:  # else no solve ran: its error is 0, not the last substep's
