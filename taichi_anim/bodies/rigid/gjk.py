@@ -134,20 +134,22 @@ def gjk(model: ti.template(), a, xa, ra, b, xb, rb):
     v = xa - xb
     if v.norm_sqr() == 0.0:
         v = ti.Vector([1.0, 0.0, 0.0])
-    first_a = core_support(model, a, xa, ra, -v)
-    first_b = core_support(model, b, xb, rb, v)
-    _set_row(sa_, 0, first_a)
-    _set_row(sb_, 0, first_b)
-    n = 1
-    v = first_a - first_b
     met = False
-    for _ in range(GJK_ITERATIONS):
+    # Pass 0 takes the first pair of support points, the others GJK's iterations: one copy of the
+    # support in the kernel (core_support, twice a pass) instead of two, the same operations in order.
+    for it in range(GJK_ITERATIONS + 1):
         vv = v.norm_sqr()
-        if vv <= 1e-24:
+        if it > 0 and vv <= 1e-24:
             met = True
             break
         pa = core_support(model, a, xa, ra, -v)
         pb = core_support(model, b, xb, rb, v)
+        if it == 0:
+            _set_row(sa_, 0, pa)
+            _set_row(sb_, 0, pb)
+            n = 1
+            v = pa - pb
+            continue
         if vv - v.dot(pa - pb) <= GJK_TOLERANCE * vv:
             break  # no support point comes closer: v is the closest point of a - b
         _set_row(sa_, n, pa)
