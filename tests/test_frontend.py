@@ -171,3 +171,18 @@ def test_integer_literal_checks_match_taichis():
             assert frontend._check_in_range(npty, val) == check(npty, val)
     for val in (0, 2**63 - 1, 2**63, 2**64 - 1, -(2**63)):
         assert frontend._clamp_unsigned_to_range(np.int64, val) == clamp(np.int64, val)
+
+
+def test_wraps_are_textwrappers():
+    """The memoised wrap's shortcut for lines that fit gives TextWrapper's own result: random lines of
+    code-like text with leading and trailing spaces, carets, blanks, tabs and lines too long."""
+    import random
+    import textwrap
+
+    rng = random.Random(7)
+    alphabet = "ab c  ^-.,()[]=+*/_0\t"
+    for _ in range(20_000):
+        text = " " * rng.randint(0, 8) + "".join(rng.choice(alphabet) for _ in range(rng.randint(0, 90)))
+        text += " " * rng.randint(0, 3)
+        assert frontend._wrapped(80, text) == tuple(textwrap.TextWrapper(width=80).wrap(text)), repr(text)
+    assert frontend._wrapped(80, "    ") == () and frontend._wrapped(80, "  x = 1  ") == ("  x = 1",)
