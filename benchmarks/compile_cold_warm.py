@@ -6,7 +6,8 @@ With `--before REV` the same figures for another commit (a `git archive` copy), 
 Each run is a fresh process with its own cache folder (TI_OFFLINE_CACHE_FILE_PATH), so nothing depends on
 what an earlier run left in ~/.cache/taichi.
 
-    .venv/bin/python benchmarks/compile_cold_warm.py [--before REV] [--demos ...] [--run-reps N] [--quick]
+    .venv/bin/python benchmarks/compile_cold_warm.py [--before REV] [--demos ...] [--start-reps N]
+        [--run-reps N] [--quick]
 
 With --demos the page is compile_cold_warm_subset (the full page keeps every demo), or --page NAME.
 """
@@ -53,6 +54,20 @@ def starts(tree: Path, name: str, tmp: Path) -> dict:
     }
 
 
+def medians(pairs: list[dict]) -> dict:
+    """Medians of several cold/warm pairs (each its own empty cache): the starts, the compile seconds and
+    the pairs' differences, with the spread of the two figures the goals are about."""
+    med = statistics.median
+    diffs = [p["cold"]["wall_s"] - p["warm"]["wall_s"] for p in pairs]
+    warm_compile = [p["warm"]["compile_s"] for p in pairs]
+    keys = ("wall_s", "compile_s")
+    return {side: {key: med(p[side][key] for p in pairs) for key in keys} for side in ("cold", "warm")} | {
+        "cold_minus_warm_s": med(diffs),
+        "spread": f"{min(diffs):.1f}-{max(diffs):.1f}; {min(warm_compile):.2f}-{max(warm_compile):.2f}",
+        "pairs": pairs,
+    }
+
+
 def steady(tree: Path, name: str, tmp: Path, run_frames: int) -> float:
     """ms per frame of a warm run of `run_frames` frames."""
     return demo(tree, name, run_frames, tmp / "cache", tmp / "out")["ms_per_frame"]
@@ -73,9 +88,10 @@ def row(label: str, name: str, m: dict) -> list:
         label,
         f"{cold['wall_s']:.1f}",
         f"{warm['wall_s']:.1f}",
-        f"{cold['wall_s'] - warm['wall_s']:.1f}",
+        f"{m['cold_minus_warm_s']:.1f}",
         f"{cold['compile_s']:.2f}",
         f"{warm['compile_s']:.2f}",
+        m["spread"],
         f"{m['ms_per_frame']:.2f}",
     ]
 
@@ -85,6 +101,9 @@ def main(argv=None) -> int:
         p.add_argument("--before", default=None, help="also measure this commit (a git archive copy)")
         p.add_argument("--demos", nargs="*", default=None, help="default: every demo")
         p.add_argument("--run-reps", type=int, default=1, help="warm runs per engine, alternating (median)")
+        p.add_argument(
+            "--start-reps", type=int, default=3, help="cold/warm pairs per engine, alternating (medians)"
+        )
         p.add_argument("--page", default=None, help="results page name (default: compile_cold_warm[_subset])")
 
     args = parse_args(__doc__, argv, options)
@@ -96,9 +115,13 @@ def main(argv=None) -> int:
         if args.before:
             trees = {"before": git_tree(args.before, Path(tmp) / "before"), "after": ROOT}
         for name in names:
-            work = {label: Path(tempfile.mkdtemp(dir=tmp)) for label in trees}
-            for label, tree in trees.items():
-                res[(name, label)] = starts(tree, name, work[label])
+            pairs: dict = {label: [] for label in trees}
+            for _ in range(args.start_reps):  # each pair with an empty cache of its own, engines alternating
+                work = {label: Path(tempfile.mkdtemp(dir=tmp)) for label in trees}
+                for label, tree in trees.items():
+                    pairs[label].append(starts(tree, name, work[label]))
+            for label in trees:
+                res[(name, label)] = medians(pairs[label])
             runs: dict = {label: [] for label in trees}
             for _ in range(args.run_reps):  # the engines alternate, so a slow spell hits both
                 for label, tree in trees.items():
@@ -112,7 +135,10 @@ def main(argv=None) -> int:
         "Cold and warm starts per demo",
         args,
         {
-            "start": f"`taichi-anim demo NAME --frames {START_FRAMES} --no-export`, process wall s",
+            "start": f"`taichi-anim demo NAME --frames {START_FRAMES} --no-export`, process wall s; "
+            f"medians of {args.start_reps} cold/warm pair(s) per engine, alternating engines, "
+            "each pair with its own cache",
+            "spread": "lowest-highest cold - warm of the pairs; lowest-highest warm compile",
             "cold": "empty offline cache (a fresh TI_OFFLINE_CACHE_FILE_PATH folder)",
             "warm": "the same command again, with the cache the cold run filled",
             "compile": "run.json timings.compile_s: kernels compiled or loaded while frames ran",
@@ -131,6 +157,7 @@ def main(argv=None) -> int:
             "cold - warm s",
             "compile cold s",
             "compile warm s",
+            "spread",
             "ms/frame",
         ],
         [row(label, name, res[(name, label)]) for name in names for label in trees],
