@@ -44,10 +44,20 @@ class Model(*MODEL_PARTS):
             capacity.collect_dropped()  # a dropped scene's fields back in the pool before this one asks
         # Each kind's arrays, from the builder's parts (bodies: {kind name: init_model's arguments}).
         self.kinds = KINDS
-        with bulk.batch():  # every kind's arrays in one fill launch (a kind reads none of them here)
+        # Every kind's arrays and the forces' in one fill launch (none of them is read here).
+        with bulk.batch():
             for kind in KINDS:
                 kind.init_model(self, **bodies[kind.name])
-        n = self.particle_count
+            n = self.particle_count
+            # Springs (cloth) are one element term among others (membrane, bending, aerodynamics).
+            self.springs = None
+            if springs is not None and len(springs["pairs"]):
+                self.springs = Springs(n, **springs, model=self)
+            # A term that keeps arrays or run-time parameters in fields places them now (capacity buckets).
+            for t in (*terms, *(element_terms or ())):
+                bind = getattr(t, "bind", None)
+                if bind is not None:
+                    bind(self)
         self.seed = seed
         self.settings = dict(settings)  # a copy: the builder's record is not written to
         self.colliders = list(colliders)
@@ -69,19 +79,10 @@ class Model(*MODEL_PARTS):
         if contacts is not None:
             self.rest_speed = float(contacts["rest_speed"])
             self.settings["sphere_contacts"] = {k: v for k, v in contacts.items() if k != "domain"}
-        # Springs (cloth) are one element term among others (membrane, bending, aerodynamics).
-        self.springs = None
-        if springs is not None and len(springs["pairs"]):
-            self.springs = Springs(n, **springs, model=self)
         self.spring_count = 0 if self.springs is None else self.springs.count
         elements = ([self.springs] if self.springs is not None else []) + list(element_terms or ())
         # Pointwise terms first: the order in which solvers sum forces (and the settings list).
         self.point_terms = tuple(terms)
-        # A term that keeps arrays or run-time parameters in fields places them now (capacity buckets).
-        for t in (*self.point_terms, *(element_terms or ())):
-            bind = getattr(t, "bind", None)
-            if bind is not None:
-                bind(self)
         self.element_terms = tuple(elements)
         self.terms = self.point_terms + self.element_terms
         self.settings["forces"] = [t.settings() for t in self.terms]

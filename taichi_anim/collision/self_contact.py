@@ -145,15 +145,16 @@ class SelfContact(ProximitySweeps, DisplacementGuard):
         if self.buckets:
             self.live = make(self, "self_contact_live", ti.i32, (), (3,))
             self.live[None] = (nv, nf, ne)
-        self.vertex = self._upload("self_contact_vertex", used, cv)
-        self.tri = self._upload("self_contact_tri", tri, cf, 3)
-        self.edge = self._upload("self_contact_edge", edges, ce, 2)
-        vt_start, vt_list = incidence(tri, nv)
-        ve_start, ve_list = incidence(edges, nv)
-        self.vt_start = self._upload("self_contact_vt_start", vt_start, cv + 1)
-        self.vt_list = self._upload("self_contact_vt_list", vt_list, 3 * cf)
-        self.ve_start = self._upload("self_contact_ve_start", ve_start, cv + 1)
-        self.ve_list = self._upload("self_contact_ve_list", ve_list, 2 * ce)
+        with bulk.batch():  # the uploads in one launch (from_numpy is a kernel per field)
+            self.vertex = self._upload("self_contact_vertex", used, cv)
+            self.tri = self._upload("self_contact_tri", tri, cf, 3)
+            self.edge = self._upload("self_contact_edge", edges, ce, 2)
+            vt_start, vt_list = incidence(tri, nv)
+            ve_start, ve_list = incidence(edges, nv)
+            self.vt_start = self._upload("self_contact_vt_start", vt_start, cv + 1)
+            self.vt_list = self._upload("self_contact_vt_list", vt_list, 3 * cf)
+            self.ve_start = self._upload("self_contact_ve_start", ve_start, cv + 1)
+            self.ve_list = self._upload("self_contact_ve_list", ve_list, 2 * ce)
         self.x0 = make(self, "self_contact_x0", float, cv, (3,))
         self.x_pred = make(self, "self_contact_x_pred", float, cv, (3,))
         self.d_vert = make(self, "self_contact_d_vert", float, cv)
@@ -210,7 +211,7 @@ class SelfContact(ProximitySweeps, DisplacementGuard):
     def _upload(self, role: str, data: np.ndarray, rows: int, n: int = 1):
         """An int32 field of `rows` rows (n columns) holding `data` (zero rows past it)."""
         f = self._make(self, role, ti.i32, rows, () if n == 1 else (n,))
-        f.from_numpy(capacity.padded(np.asarray(data).astype(np.int32), rows, np.int32))
+        bulk.fill([(f, capacity.padded(np.asarray(data).astype(np.int32), rows, np.int32))])
         return f
 
     # The live counts of vertices, triangles and edges (capacity.live).

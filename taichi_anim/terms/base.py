@@ -42,7 +42,7 @@ class; `TermBounds` gives the defaults, and `check_protocol` refuses a term that
 import numpy as np
 import taichi as ti
 
-from .. import capacity
+from .. import bulk, capacity
 from ..errors import ParameterError
 from ..runtime import data_oriented, np_float
 from .stiffness import BlockPart
@@ -203,12 +203,17 @@ class ElementTerm(TermBounds):
         self._energy_fields = self._array_fields = None  # diagnostics' scratch follows the new rows
         start, entry = adjacency(self.vertices, particle_rows)
         self.element_vertex = make(self, f"{role}_vertex", ti.i32, element_rows, (self.arity,))
-        self.element_vertex.from_numpy(capacity.padded(self.vertices, element_rows, np.int32))
         self.adj_start = make(self, f"{role}_adj_start", ti.i32, particle_rows + 1)
         self.adj_entry = make(self, f"{role}_adj_entry", ti.i32, element_rows * self.arity)
-        self.adj_start.from_numpy(start)
-        self.adj_entry.from_numpy(capacity.padded(entry, element_rows * self.arity, np.int32))
-        self.place_arrays(make, element_rows)
+        with bulk.batch():  # these and the subclass's arrays in one launch (from_numpy: a kernel per field)
+            bulk.fill(
+                [
+                    (self.element_vertex, capacity.padded(self.vertices, element_rows, np.int32)),
+                    (self.adj_start, start),
+                    (self.adj_entry, capacity.padded(entry, element_rows * self.arity, np.int32)),
+                ]
+            )
+            self.place_arrays(make, element_rows)
 
     def place_arrays(self, make, rows: int) -> None:
         """A subclass's own per-element arrays, `rows` rows from make(owner, role, dtype, shape, dims)

@@ -46,7 +46,7 @@ import math
 import numpy as np
 import taichi as ti
 
-from .. import capacity, validate
+from .. import bulk, capacity, validate
 from ..errors import ParameterError
 from ..runtime import data_oriented, np_float
 from .base import ElementTerm
@@ -166,7 +166,7 @@ class BendingDihedral(RankOneLinear, ElementTerm):
         """Per hinge: theta0, k w, beta (beta per hinge so a Builder can merge garments with their own)."""
         param = np.stack([self.rest_angle, self.stiffness * self.weight, np.full(self.count, self.beta)], 1)
         self.hinge_param = make(self, "hinge_param", float, rows, (3,))
-        self.hinge_param.from_numpy(capacity.padded(param, rows, np_float()))
+        bulk.fill([(self.hinge_param, capacity.padded(param, rows, np_float()))])
 
     @classmethod
     def from_mesh(cls, particle_count: int, triangles, rest_positions, **kw) -> "BendingDihedral":

@@ -32,7 +32,7 @@ x-derivative of the damping force is left out, as Baraff & Witkin ("Large Steps 
 import numpy as np
 import taichi as ti
 
-from .. import capacity, validate
+from .. import bulk, capacity, validate
 from ..errors import ParameterError
 from ..runtime import data_oriented, np_float
 from .base import ElementTerm
@@ -156,8 +156,12 @@ class MembraneStVK(ElementTerm):
         dm_inv, area = self._rest
         self.dm_inv = make(self, "membrane_dm_inv", float, rows, (2, 2))
         self.area = make(self, "membrane_area", float, rows)
-        self.dm_inv.from_numpy(capacity.padded(dm_inv, rows, np_float()))
-        self.area.from_numpy(capacity.padded(area, rows, np_float()))
+        bulk.fill(
+            [
+                (self.dm_inv, capacity.padded(dm_inv, rows, np_float())),
+                (self.area, capacity.padded(area, rows, np_float())),
+            ]
+        )
 
     def settings(self) -> dict:
         """The term's settings for run.json."""

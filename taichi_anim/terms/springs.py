@@ -16,7 +16,7 @@ count). The update loop that follows may overwrite positions in place: the sprin
 import numpy as np
 import taichi as ti
 
-from .. import capacity
+from .. import bulk, capacity
 from ..runtime import data_oriented, np_float
 from .base import TermBounds
 from .stiffness import SpringPart
@@ -124,9 +124,6 @@ class Springs(TermBounds):
         self.adj_start = make(self, "spring_adj_start", ti.i32, rows + 1)
         self.adj_spring = make(self, "spring_adj_spring", ti.i32, 2 * cap)
         self.adj_other = make(self, "spring_adj_other", ti.i32, 2 * cap)
-        self.adj_start.from_numpy(start)
-        self.adj_spring.from_numpy(capacity.padded(signed[order], 2 * cap, np.int32))
-        self.adj_other.from_numpy(capacity.padded(other[order], 2 * cap, np.int32))
         # Where each spring sits in the adjacency: (entry at its first end, entry at its second end).
         where = np.empty((s, 2), dtype=np.int32)
         sorted_signed = signed[order]
@@ -134,12 +131,19 @@ class Springs(TermBounds):
         where[sorted_signed[first] - 1, 0] = np.flatnonzero(first)
         where[-sorted_signed[~first] - 1, 1] = np.flatnonzero(~first)
         self.spring_entry = make(self, "spring_entry", ti.i32, cap, (2,))
-        self.spring_entry.from_numpy(capacity.padded(where, cap, np.int32))
         self.spring_pair = make(self, "spring_pair", ti.i32, cap, (2,))
         self.spring_param = make(self, "spring_param", float, cap, (3,))  # rest length, stiffness, damping
-        self.spring_pair.from_numpy(capacity.padded(pairs, cap, np.int32))
         param = np.stack([self.rest_length, self.stiffness, self.damping], axis=1)
-        self.spring_param.from_numpy(capacity.padded(param, cap, f))
+        bulk.fill(  # one launch, with the Model's other arrays in its batch (from_numpy: a kernel per field)
+            [
+                (self.adj_start, start),
+                (self.adj_spring, capacity.padded(signed[order], 2 * cap, np.int32)),
+                (self.adj_other, capacity.padded(other[order], 2 * cap, np.int32)),
+                (self.spring_entry, capacity.padded(where, cap, np.int32)),
+                (self.spring_pair, capacity.padded(pairs, cap, np.int32)),
+                (self.spring_param, capacity.padded(param, cap, f)),
+            ]
+        )
 
     def settings(self) -> dict:
         """The term's settings for run.json."""
