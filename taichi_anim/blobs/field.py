@@ -164,9 +164,9 @@ class BlobField:
             buf[: len(pts)] = pts
             self._x.from_numpy(buf)
             x, count, death = self._x, len(pts), None
-        self.neighbors.build(x, count, death, t)
-        self.vertex_neighbors.build(x, count, death, t)
-        self._evaluate()
+        n = self.neighbors.checked_count(x, count)
+        self.vertex_neighbors.checked_count(x, count)
+        self._evaluate(x, n, death, float(t), death is not None)  # death None: not read
 
     @ti.func
     def node_position(self, i, j, k):
@@ -226,8 +226,12 @@ class BlobField:
                             # writes these nodes.
                             self.psi[node] = self.psi[node] + eij * e[2, m]
 
+    # The two neighbour structures' builds and the evaluation in one launch: three kernels to compile
+    # or load before (the builds' for each structure).
     @ti.kernel
-    def _evaluate(self):
+    def _evaluate(self, x: ti.template(), n: ti.i32, death: ti.template(), t: float, alive: ti.template()):
+        self.neighbors.build_pass(x, n, death, t, alive)
+        self.vertex_neighbors.build_pass(x, n, death, t, alive)
         self._activate_blocks()
         self._gather_blocks()
 

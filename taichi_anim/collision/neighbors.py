@@ -71,12 +71,17 @@ class _NeighborSearch:
     def build(self, x, count: int | None = None, death=None, t: float = 0.0) -> None:
         """Index particles [0, count) of the Vector field x [m]; with a `death` field [s], only those with
         death > t (alive)."""
+        n = self.checked_count(x, count)
+        self._build(x, n, death if death is not None else self._no_death, float(t), death is not None)
+
+    def checked_count(self, x, count: int | None) -> int:
+        """The count `build` indexes (x's length when None), refused outside [0, capacity] and x."""
         n = x.shape[0] if count is None else count
         if not 0 <= n <= min(self.capacity, x.shape[0]):
             raise ParameterError(
                 f"count must be in [0, min(capacity {self.capacity}, positions {x.shape[0]})], got {n}"
             )
-        self._build(x, n, death if death is not None else self._no_death, float(t), death is not None)
+        return n
 
     @ti.func
     def for_each_neighbor(self, i, p, radius, visit: ti.template(), ret: ti.template()):
@@ -108,6 +113,11 @@ class NeighborBrute(_NeighborSearch):
 
     @ti.kernel
     def _build(self, x: ti.template(), n: ti.i32, death: ti.template(), t: float, use_death: ti.template()):
+        self.build_pass(x, n, death, t, use_death)
+
+    @ti.func
+    def build_pass(self, x: ti.template(), n, death: ti.template(), t, use_death: ti.template()):
+        """_build's work, for a kernel that builds the structure among other passes."""
         ti.loop_config(serialize=True)  # order-preserving compaction; brute force is only for small N
         for _ in range(1):
             size = 0
