@@ -258,8 +258,7 @@ def frequency(model, x, v=None, t: float = 0.0, *, blocks: bool | None = None) -
 
 def state_frequency(model, state) -> Frequency:
     """frequency() at the state's positions and velocities and time."""
-    x = state.positions()
-    v = state.velocities()
+    x, v, _ = state.motion()
     return frequency(model, x, v, state.time)
 
 

@@ -356,10 +356,9 @@ def scene_bounds(model, state, separation_speed: float = 0.0) -> dict:
     separation_speed [m/s]: how fast contacts push the start's overlapping spheres apart. Every part is
     asked, never its class: colliders for their points over their keyframes and their speed, terms for
     the speed and uniform acceleration they supply and the energy they hold (terms/base.py)."""
-    alive = state.alive_mask()
-    x_all = state.positions()
+    x_all, v_all, alive = state.motion()
     x = x_all[alive]
-    v = state.velocities()[alive]
+    v = v_all[alive]
     points = [x.reshape(-1, 3)]
     speeds = [float(np.max(np.linalg.norm(v, axis=1), initial=0.0)), separation_speed]
     for c in model.colliders:

@@ -202,6 +202,27 @@ def test_recycling_with_scattered_deaths_and_unaligned_pools():
     assert np.all(state.particle_death.to_numpy()[: model.particle_count] > state.time - 0.005)
 
 
+def test_motion_reads_what_positions_velocities_and_alive_mask_read():
+    """state.motion() (one launch, the snapshot's fields) gives positions(), velocities() and
+    alive_mask(): with emitters (some slots dead) and without."""
+    model, state = fountain(rate=600.0, capacity=60, lifetime=0.05)
+    integ = ta.make_integrator("symplectic_euler")
+    for _ in range(9):
+        integ.step(model, state, 1 / 60)
+    x, v, alive = state.motion()
+    assert 0 < alive.sum() < len(alive)  # some slots dead, some alive
+    np.testing.assert_array_equal(x, state.positions())
+    np.testing.assert_array_equal(v, state.velocities())
+    np.testing.assert_array_equal(alive, state.alive_mask())
+    b = ta.Builder()
+    b.add_particles(np.arange(12.0).reshape(4, 3), np.ones((4, 3)))
+    still = b.finalize().state()
+    x, v, alive = still.motion()
+    np.testing.assert_array_equal(x, still.positions())
+    np.testing.assert_array_equal(v, still.velocities())
+    assert alive.all() and x.dtype == v.dtype == np.float64
+
+
 def test_two_states_of_one_model_emit_independently():
     """The fractional-birth carry and the free-slot cursor belong to the state: stepping one state
     does not change what another state of the same model emits (rate 50/s at dt = 1/60: 0.83 per step,

@@ -97,6 +97,20 @@ class ParticleState:
         """(N,3) float64 velocities [m/s] of every particle slot."""
         return bulk.read([self.particle_v], self.model.particle_count)[0].astype(np.float64)
 
+    def motion(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(positions (N,3) [m], velocities (N,3) [m/s], alive (N,) bool) of every particle slot, float64,
+        in one launch of the kernel snapshot() reads with (the same fields: one kernel to compile)."""
+        n = self.model.particle_count
+        if self.has_lifetimes:
+            x, v, _, death = bulk.read(
+                [self.particle_x, self.particle_v, self.particle_birth, self.particle_death], n
+            )
+            alive = death > self.time
+        else:
+            x, v = bulk.read([self.particle_x, self.particle_v], n)
+            alive = np.ones(n, dtype=bool)
+        return x.astype(np.float64), v.astype(np.float64), alive
+
     def set_positions(self, x, indices=None) -> None:
         """Overwrite positions [m]: `x` is (N,3) for every particle, or (len(indices),3) with `indices`
         the particles to move. Pinned particles move too (they are kinematic). The watchdog re-takes the
