@@ -427,7 +427,7 @@ def energy_function(model):
     def energy(state) -> float:
         e = float(_kinetic_energy(model, state, out))
         if potentials:
-            x = state.positions()
+            x = state.motion()[0]  # the read scene_bounds compiled (positions() is a kernel of its own)
             e += sum(float(t.energy(x, masses)) for t in potentials)
         return e
 
