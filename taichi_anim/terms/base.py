@@ -217,7 +217,9 @@ class ElementTerm(TermBounds):
 
     def place_arrays(self, make, rows: int) -> None:
         """A subclass's own per-element arrays, `rows` rows from make(owner, role, dtype, shape, dims)
-        (see _place); none here."""
+        (see _place); none here. It runs inside a bulk.batch(): arrays written with bulk.fill join one
+        launch, and the term's arrays (element_vertex, the adjacency) are written only when the batch
+        closes, so no kernel launched here may read them."""
 
     def _ensure_placed(self) -> None:
         if self.particle_rows is None:  # used outside a model with buckets on: exact sizes

@@ -134,7 +134,8 @@ class FluidDynamics(PressureSolves, SerialSubstep, FluidReport):
                 apart, lo, hi = self.bodies.apart(self.support)
                 apart_grid = NeighborGrid(self.bodies.count, 0.5 * self.support, domain=(lo, hi), make=make)
                 self.body_grid = NeighborGrid(self.bodies.count, 0.5 * self.support, domain=grow, make=make)
-        self._setup(bx, self.boundary_count, apart, self.bodies.count if self.coupled else 0, apart_grid)
+        if self.walls or self.coupled:
+            self._setup(bx, self.boundary_count, apart, self.bodies.count if self.coupled else 0, apart_grid)
         f = lambda role, dtype=float, dims=(), shape=n: make(self, role, dtype, shape, dims)  # noqa: E731
         self.cx, self.sv, self.sv2 = (f(f"fluid_{r}", dims=(3,)) for r in ("cx", "sv", "sv2"))
         self.rho, self.alpha, self.kappa, self.kacc = (f(f"fluid_{r}") for r in ("rho", "alpha", "k", "kacc"))
