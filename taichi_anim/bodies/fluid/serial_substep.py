@@ -33,10 +33,10 @@ class SerialSubstep:
         return self.serial and self.one_launch_solve
 
     def _thresholds(self, model, tolerance: float) -> int:
-        """The solve's threshold for the liquid's count (first_sum_above); for a liquid fed by nozzles,
-        whose live count only the launch knows, 0, and the table of both solves' thresholds over every
-        count (row 0 the density solve's, row 1 the divergence solve's) is written if a tolerance changed
-        since it was."""
+        """The solve's threshold for the liquid's count (first_sum_above). A liquid fed by nozzles, whose
+        live count only the launch knows, gets 0 (unread): its solves read the table of both solves'
+        thresholds over every count (row 0 the density solve's, row 1 the divergence solve's), written
+        here when a tolerance changed since it was."""
         if not self.emitted:
             return first_sum_above(tolerance, model.fluid_count)
         key = (self.tolerance, self.divergence_tolerance)
