@@ -63,8 +63,8 @@ class FluidDynamics(PressureSolves, SerialSubstep, FluidReport):
     """The liquid's pressure solver (module docstring); built by the Stepper from `model.fluid`."""
 
     name = "fluid"
-    # A small liquid's (serial) solve runs in one launch (_solve_serially); False: a launch per iteration
-    # (tests compare the two).
+    # A small liquid's (serial) substep runs in two launches, its solves inside them (serial_substep.py);
+    # False: a launch per pass and per iteration (tests compare the two).
     one_launch_solve = True
     divergence_solve = True  # PBF has none
 

@@ -25,7 +25,7 @@ import taichi as ti
 
 from ...runtime import data_oriented
 from .dfsph import FluidDynamics
-from .pressure import ERROR_SCALE, first_sum_above
+from .pressure import ERROR_SCALE
 from .sph_kernel import cubic_w, cubic_w_grad
 
 
@@ -55,20 +55,13 @@ class PositionBasedFluid(FluidDynamics):
             return 0, 0.0, 0.0
         if self.coupled:
             self.bodies.move(self.model, state)
-        if self.serial and self.one_launch_solve:  # the whole solve in one launch (pressure.py)
-            above = first_sum_above(self.tolerance, n)
-            it, total = (
-                int(c) for c in self._constrain_serially(h, above, self.min_iterations, self.max_iterations)
-            )
-            mean = total / ERROR_SCALE / n
-        else:
-            self._predict_positions(h)
-            mean = self._constraints(h) / ERROR_SCALE / n  # launches return the errors' sum (pressure.py)
-            it = 0
-            while it < self.max_iterations and (mean > self.tolerance or it < self.min_iterations):
-                mean = self._project_and_constrain(h) / ERROR_SCALE / n
-                it += 1
-            self._velocities(h)
+        self._predict_positions(h)
+        mean = self._constraints(h) / ERROR_SCALE / n  # launches return the errors' sum (pressure.py)
+        it = 0
+        while it < self.max_iterations and (mean > self.tolerance or it < self.min_iterations):
+            mean = self._project_and_constrain(h) / ERROR_SCALE / n
+            it += 1
+        self._velocities(h)
         if self.coupled:
             self._push_bodies(self.model, state, h)
         return it, mean, float(self.err_max[None])
@@ -81,25 +74,11 @@ class PositionBasedFluid(FluidDynamics):
     def _velocities(self, h: float):
         self._velocities_pass(h)
 
-    @ti.kernel
-    def _constrain_serially(self, h: float, above: ti.i64, least: ti.i32, most: ti.i32) -> ti.types.vector(
-        2, ti.i64
-    ):
-        """Prediction, constraints, projections while the errors' sum is at least `above` or fewer than
-        `least` were made (at most `most`), velocities: returns (iterations, the last errors' sum). A
-        small liquid's density step in one launch (pressure.py's _solve_serially; not that name: it takes
-        other arguments)."""
-        out = ti.Vector([0, 0], dt=ti.i64)
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            it = self._density_pass(None, h, above, least, most)
-            out = ti.Vector([it, self.err_sum[None]], dt=ti.i64)
-        return out
-
     @ti.func
     def _density_pass(self, state: ti.template(), h, above, least, most):
-        """_constrain_serially's work inside a serial loop of the calling kernel (the state is not read);
-        returns the iterations."""
+        """The density step inside a serial loop of the calling kernel (serial_substep.py; the state is not
+        read): prediction, constraints, projections while the errors' sum is at least `above` or fewer
+        than `least` were made (at most `most`), velocities; returns the iterations."""
         self._predict_positions_pass(h)
         it = -1  # -1: the constraints at the predicted positions (one copy: pressure.py's _solve_pass)
         while it < 0 or (it < most and (self.err_sum[None] >= above or it < least)):

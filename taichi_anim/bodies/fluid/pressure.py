@@ -5,10 +5,9 @@ iterated until the mean error is under the tolerance. This mixin holds them, on 
 
 A solve is a launch for its warm start and first prediction and one per iteration, each returning the
 errors' fixed-point sum (2^-40 units: its atomic sum does not depend on thread timing), or, for a small
-liquid whose loops run serially, one launch for the whole solve (_solve_serially), or part of the
-substep's launch for a small liquid alone (serial_substep.py, through _solve_pass)."""
+liquid whose loops run serially, part of its substep's launch (serial_substep.py, through _solve_pass)."""
 
-import math
+import functools
 
 import numpy as np
 import taichi as ti
@@ -19,22 +18,18 @@ DIVERGENCE_MIN_NEIGHBORS = 20  # sparser particles (spray, the free surface) ski
 ERROR_SCALE = float(1 << 40)  # fixed-point unit of the summed errors
 
 
+@functools.lru_cache(maxsize=1024)  # asked every substep, for a few tolerances and counts
 def first_sum_above(tolerance: float, count: int) -> int:
     """The least fixed-point error sum e whose mean, e / ERROR_SCALE / count in floating point as _solve
     computes it, is above `tolerance`: comparing e >= it in a kernel stops where that mean would."""
-    e = math.floor(tolerance * ERROR_SCALE * count)
-    while e > 0 and e / ERROR_SCALE / count > tolerance:
-        e -= 1
-    while not e / ERROR_SCALE / count > tolerance:
-        e += 1
-    return e
+    return int(first_sums_above(tolerance, np.array([count]))[0])
 
 
-def first_sums_above(tolerance: float, count: int) -> np.ndarray:
-    """first_sum_above(tolerance, n) for n = 0 .. count (0 at n = 0, where no solve runs), the same
-    float64 operations on every element: the thresholds a kernel looks up when the live count is known
-    only inside it (a liquid fed by nozzles, serial_substep.py)."""
-    n = np.arange(1, count + 1, dtype=np.float64)
+def first_sums_above(tolerance: float, counts: np.ndarray) -> np.ndarray:
+    """first_sum_above(tolerance, n) for every n > 0 of `counts`, in float64 as Python's floats compute
+    it: also the thresholds a kernel looks up when the live count is known only inside it (a liquid fed
+    by nozzles, serial_substep.py)."""
+    n = np.asarray(counts, dtype=np.float64)
     e = np.floor(tolerance * ERROR_SCALE * n)
     while True:
         high = (e > 0) & (e / ERROR_SCALE / n > tolerance)
@@ -46,7 +41,7 @@ def first_sums_above(tolerance: float, count: int) -> np.ndarray:
         if not low.any():
             break
         e[low] += 1
-    return np.concatenate([[0], e]).astype(np.int64)
+    return e.astype(np.int64)
 
 
 # Warm starts: the share of the last step's summed stiffness a solve starts from. A kappa summed over
@@ -83,19 +78,13 @@ class PressureSolves:
             self.bodies.move(self.model, state)  # the bodies' velocities now (the samples' speeds)
         tol = self.divergence_tolerance if divergence else self.tolerance
         least = min(self.min_iterations, 1) if divergence else self.min_iterations
-        if self.serial and self.one_launch_solve:  # the whole solve in one launch: its loops are serial
-            it, total = (int(c) for c in self._solve_serially(
-                state, self.model, h, int(divergence), first_sum_above(tol, n), least, self.max_iterations
-            ))  # fmt: skip
-            mean = total / ERROR_SCALE / n
-        else:
-            # Each launch returns the errors' fixed-point sum: reading the field after it would be one
-            # more launch per iteration (a small liquid's frame made about 60 such reads).
-            mean = self._start(state, self.model, h, int(divergence)) / ERROR_SCALE / n
-            it = 0
-            while it < self.max_iterations and (mean > tol or it < least):
-                mean = self._iterate(h, int(divergence)) / ERROR_SCALE / n
-                it += 1
+        # Each launch returns the errors' fixed-point sum: reading the field after it would be one more
+        # launch per iteration (a small liquid's frame made about 60 such reads).
+        mean = self._start(state, self.model, h, int(divergence)) / ERROR_SCALE / n
+        it = 0
+        while it < self.max_iterations and (mean > tol or it < least):
+            mean = self._iterate(h, int(divergence)) / ERROR_SCALE / n
+            it += 1
         if self.coupled:
             # The bodies take their impulses once per solve. Giving them back after every iteration
             # (the samples then moving within the solve) changed neither a floating plank's heave
@@ -160,45 +149,19 @@ class PressureSolves:
         self._next_prediction(h, divergence)
         return self.err_sum[None]
 
-    # A small liquid's solve in one launch, not a launch per iteration (about 25 us each here, more
-    # than a small liquid's iteration): its loops are serial anyway. The mean error is compared as the
-    # fixed-point sum against the first sum whose mean exceeds the tolerance (first_sum_above), so the
-    # iterations stop exactly where the launch-per-iteration loop in _solve stops.
-    @ti.kernel
-    def _solve_serially(
-        self,
-        state: ti.template(),
-        model: ti.template(),
-        h: float,
-        divergence: ti.i32,
-        above: ti.i64,
-        least: ti.i32,
-        most: ti.i32,
-    ) -> ti.types.vector(2, ti.i64):
-        """The first prediction, then iterations while the errors' sum is at least `above` or fewer than
-        `least` were made, at most `most`; returns (iterations, the last errors' fixed-point sum)."""
-        out = ti.Vector([0, 0], dt=ti.i64)
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            it = self._solve_pass(state, h, divergence, above, least, most)
-            out = ti.Vector([it, self.err_sum[None]], dt=ti.i64)
-        return out
-
     @ti.func
     def _solve_pass(self, state: ti.template(), h, divergence, above, least, most):
-        """_solve_serially's work, inside a serial loop of the calling kernel; returns the iterations.
-        The first prediction and the iterations share one copy of the correction and the prediction
-        (the warm start's correction is the first pass's, skipped where _first_prediction skips it):
-        the same operations in the same order as _first_prediction then _next_prediction, in half the
-        code to compile."""
+        """The whole solve inside a serial loop of the calling kernel (serial_substep.py): the first
+        prediction, then iterations while the errors' sum is at least `above` (first_sum_above: where the
+        launch-per-iteration loop in _solve stops) or fewer than `least` were made, at most `most`;
+        returns the iterations. The first prediction is the loop's pass -1 (its warm start's correction
+        skipped where _first_prediction skips it): one copy of the correction and prediction to compile,
+        the same operations in the same order."""
         self._warm_start(state, h, divergence)
         apply = ti.static(WARM_DIVERGENCE > 0.0) or not divergence
         it = -1  # -1: the first prediction
         while it < 0 or (it < most and (self.err_sum[None] >= above or it < least)):
-            self._correct(h, apply)
-            self.err_sum[None] = 0
-            self.err_max[None] = 0.0
-            self._predict(h, divergence)
+            self._prediction(h, divergence, apply)
             apply = True
             it += 1
         return it
@@ -212,10 +175,7 @@ class PressureSolves:
     def _first_prediction(self, state: ti.template(), h, divergence):
         """Warm start from a share of the last step's stiffness, then the first prediction."""
         self._warm_start(state, h, divergence)
-        self._correct(h, ti.static(WARM_DIVERGENCE > 0.0) or not divergence)
-        self.err_sum[None] = 0
-        self.err_max[None] = 0.0
-        self._predict(h, divergence)
+        self._prediction(h, divergence, ti.static(WARM_DIVERGENCE > 0.0) or not divergence)
 
     @ti.func
     def _warm_start(self, state: ti.template(), h, divergence):
@@ -238,7 +198,13 @@ class PressureSolves:
     @ti.func
     def _next_prediction(self, h, divergence):
         """One correction and the next prediction."""
-        self._correct(h, True)
+        self._prediction(h, divergence, True)
+
+    @ti.func
+    def _prediction(self, h, divergence, apply):
+        """The correction by the current stiffness (where `apply`), then the errors' sums cleared and the
+        next prediction."""
+        self._correct(h, apply)
         self.err_sum[None] = 0
         self.err_max[None] = 0.0
         self._predict(h, divergence)

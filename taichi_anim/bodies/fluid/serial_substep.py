@@ -42,9 +42,10 @@ class SerialSubstep:
         key = (self.tolerance, self.divergence_tolerance)
         if self._thresholds_for != key:
             n = model.fluid_count
-            table = np.zeros(self.sum_above.shape, dtype=np.int64)
-            table[0, : n + 1] = first_sums_above(self.tolerance, n)
-            table[1, : n + 1] = first_sums_above(self.divergence_tolerance, n)
+            table = np.zeros(self.sum_above.shape, dtype=np.int64)  # count 0: no solve runs
+            counts = np.arange(1, n + 1)
+            table[0, 1 : n + 1] = first_sums_above(self.tolerance, counts)
+            table[1, 1 : n + 1] = first_sums_above(self.divergence_tolerance, counts)
             self.sum_above.from_numpy(table)
             self._thresholds_for = key
         return 0
