@@ -99,17 +99,20 @@ class ParticleState:
 
     def motion(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(positions (N,3) [m], velocities (N,3) [m/s], alive (N,) bool) of every particle slot, float64,
-        in one launch of the kernel snapshot() reads with (the same fields: one kernel to compile)."""
+        in one launch of the kernel snapshot() reads with (_slots: one kernel to compile)."""
+        x, v, _, death = self._slots()
+        alive = death > self.time if self.has_lifetimes else np.ones(len(x), dtype=bool)
+        return x.astype(np.float64), v.astype(np.float64), alive
+
+    def _slots(self) -> tuple:
+        """(x, v, birth, death) of every slot in one launch (bulk.read); birth and death None without
+        lifetimes."""
         n = self.model.particle_count
         if self.has_lifetimes:
-            x, v, _, death = bulk.read(
-                [self.particle_x, self.particle_v, self.particle_birth, self.particle_death], n
+            return tuple(
+                bulk.read([self.particle_x, self.particle_v, self.particle_birth, self.particle_death], n)
             )
-            alive = death > self.time
-        else:
-            x, v = bulk.read([self.particle_x, self.particle_v], n)
-            alive = np.ones(n, dtype=bool)
-        return x.astype(np.float64), v.astype(np.float64), alive
+        return (*bulk.read([self.particle_x, self.particle_v], n), None, None)
 
     def set_positions(self, x, indices=None) -> None:
         """Overwrite positions [m]: `x` is (N,3) for every particle, or (len(indices),3) with `indices`
@@ -144,16 +147,12 @@ class ParticleState:
 
     def snapshot(self) -> ParticleSnapshot:
         """Copy the alive particles to NumPy (read-only output; never fed back)."""
-        n = self.model.particle_count
-        if self.has_lifetimes:  # one launch for every array (bulk.read)
-            x, v, birth, death = bulk.read(
-                [self.particle_x, self.particle_v, self.particle_birth, self.particle_death], n
-            )
+        x, v, birth, death = self._slots()
+        if self.has_lifetimes:
             idx = np.nonzero(death > self.time)[0]
             x, v, birth, death = x[idx], v[idx], birth[idx], death[idx]
         else:
-            x, v = bulk.read([self.particle_x, self.particle_v], n)
-            idx = np.arange(n)
+            idx = np.arange(len(x))
         if self.has_lifetimes:
             age = self.time - birth
             life = np.where(death >= ALIVE_FOREVER, np.inf, death - birth)
