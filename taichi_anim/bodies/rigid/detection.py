@@ -70,7 +70,11 @@ class ContactDetection(BroadPhase, ManifoldReduction):
         bound, which past a face's edge reads a sphere clear of the edge as penetrating (0.7 s of
         compile, on the kernel compiled as dynamics.py says; 2.7 s with Taichi's passes). Where two equal
         faces lie on each other, both sides find the same corners: the doubled contacts are kept
-        (removing them made a 20-box tower creep 17 mm in 10 s instead of 1.2)."""
+        (removing them made a 20-box tower creep 17 mm in 10 s instead of 1.2).
+
+        Side 2 is _cores' pass (the cores' closest points, for round shapes that met with none of their
+        points): one pass of the loop, sharing its one GJK call, so that the kernel holds one copy of
+        GJK instead of two (the pile demo's contact step: 16 % of its front end was the two)."""
         a, b, ga, gb = pair
         xa, ra, xb, rb = poses
         src, dst = ga, gb
@@ -81,39 +85,71 @@ class ContactDetection(BroadPhase, ManifoldReduction):
         mu, e = self._material(model, a, b)
         exact = model.geom_round[src] != 0 and model.geom_round[dst] == 0
         on_core = ti.static(64.0 * float(np.finfo(np_float()).eps)) * (xd.norm() + model.geom_bound[dst])
-        for k in range(model.geom_point_start[src], model.geom_point_start[src + 1]):
-            if not model.geom_contact_point[k]:
-                continue  # a mesh's vertex that another of its prisms holds, or a prism's inner corner
-            p = xs + rs @ model.geom_points[k]
-            radius = model.geom_point_radius[k]
-            d, n = geom_sdf(model, dst, xd, rd, p)
-            if ti.static(model.rigid_has_round):
-                if model.geom_round[dst] != 0 and d + model.geom_radius[dst] <= on_core:
-                    continue  # on the other's core, to round-off: no way out known here (_cores_crossing)
-            if ti.static(model.rigid_round_and_polytopes):
-                if exact and d > 0.0 and d - radius < margin:
-                    d, _, closest = gjk(model, -1, p, rs, dst, xd, rd)
-                    if d > 0.0:
-                        n = (p - closest) / d
-            sep = d - radius
-            if ti.static(model.rigid_prisms and model.rigid_has_round):
-                # a round shape's point on a triangle, or a mesh's vertex in a round shape: only along a
-                # direction the triangle's surface faces (_inactive); its neighbours hold the contact
-                if model.geom_prism[dst] and model.geom_round[src]:
-                    if self._inactive(model, dst, rd, n):
-                        sep = margin
-                if model.geom_prism[src] and model.geom_round[dst]:
-                    if self._inactive(model, src, rs, -n):
-                        sep = margin
+        first, last = model.geom_point_start[src], model.geom_point_start[src + 1]
+        if side == 2:
+            first, last = 0, 1
+        for k in range(first, last):
+            # a mesh's vertex that another of its prisms holds, or a prism's inner corner, is skipped
+            if side == 2 or model.geom_contact_point[k]:
+                zero = ti.Vector.zero(float, 3)
+                p, radius, d, n = zero, ti.cast(0.0, float), ti.cast(0.0, float), zero
+                on = False  # on the other's core, to round-off: no way out known here (_cores_crossing)
+                query = side == 2  # GJK: the cores (side 2), or a round point outside a polytope
+                if side < 2:
+                    p = xs + rs @ model.geom_points[k]
+                    radius = model.geom_point_radius[k]
+                    d, n = geom_sdf(model, dst, xd, rd, p)
+                    if ti.static(model.rigid_has_round):
+                        on = model.geom_round[dst] != 0 and d + model.geom_radius[dst] <= on_core
+                    if ti.static(model.rigid_round_and_polytopes):
+                        query = exact and d > 0.0 and d - radius < margin and not on
+                dist, closest_s, closest_d = ti.cast(0.0, float), zero, zero
+                if ti.static(model.rigid_has_round):
+                    if query:
+                        qs, qx = src, xs  # side 2: ga's core (src is ga)
+                        if side < 2:
+                            qs, qx = -1, p
+                        dist, closest_s, closest_d = gjk(model, qs, qx, rs, dst, xd, rd)
+                if ti.static(model.rigid_has_round):
+                    if side == 2:
+                        self._cores_found(model, pair, poses, dist, closest_s, closest_d, margin)
+                if side < 2 and not on:
+                    if query:
+                        d = dist
+                        if d > 0.0:
+                            n = (p - closest_d) / d
+                    self._point_contact(model, pair, poses, side, pair_n, face, margin, src, dst, k, p,
+                                        radius, d, n, mu, e)  # fmt: skip
+
+    @ti.func
+    def _point_contact(self, model: ti.template(), pair, poses, side, pair_n, face, margin, src, dst, k, p,
+                       radius, d, n, mu, e):  # fmt: skip
+        """_points_in's contact of point k of geom src (at p, of `radius`) at signed distance d (normal n)
+        from geom dst, if within the margin."""
+        a, b, ga, gb = pair
+        xa, ra, xb, rb = poses
+        rs, rd = ra, rb
+        if side == 1:
+            rs, rd = rb, ra
+        sep = d - radius
+        if ti.static(model.rigid_prisms and model.rigid_has_round):
+            # a round shape's point on a triangle, or a mesh's vertex in a round shape: only along a
+            # direction the triangle's surface faces (_inactive); its neighbours hold the contact
+            if model.geom_prism[dst] and model.geom_round[src]:
+                if self._inactive(model, dst, rd, n):
+                    sep = margin
+            if model.geom_prism[src] and model.geom_round[dst]:
+                if self._inactive(model, src, rs, -n):
+                    sep = margin
+        if sep < margin:
+            normal = n if side == 0 else -n
+            point = p - radius * n
+            if pair_n.norm_sqr() > 0.0:
+                normal = pair_n
+                sep = pair_n.dot(p) - face if side == 0 else face - pair_n.dot(p)
             if sep < margin:
-                normal = n if side == 0 else -n
-                point = p - radius * n
-                if pair_n.norm_sqr() > 0.0:
-                    normal = pair_n
-                    sep = pair_n.dot(p) - face if side == 0 else face - pair_n.dot(p)
-                if sep < margin:
-                    zero = ti.Vector.zero(float, 3)
-                    self._add(a, b, ga, gb, side, k, point, normal, sep, zero, mu, e)
+                zero = ti.Vector.zero(float, 3)
+                self._add(a, b, ga, gb, side, k, point, normal, sep, zero, mu, e)
 
     @ti.func
     def _edges_clipped(self, model: ti.template(), pair, poses, side, pair_n, face, margin):
@@ -229,14 +265,13 @@ class ContactDetection(BroadPhase, ManifoldReduction):
         return inactive
 
     @ti.func
-    def _cores(self, model: ti.template(), pair, poses, margin):
-        """One contact at the closest points of two geoms' cores (GJK), for a round shape that meets the
-        other with none of its points: a capsule across another, or across a box's edge; where the cores
-        meet, two round cores crossing (_cores_crossing) or a round core through a polytope
-        (_core_through)."""
+    def _cores_found(self, model: ti.template(), pair, poses, dist, pa, pb, margin):
+        """One contact at the closest points pa, pb of two geoms' cores (GJK, `dist` apart: _points_in's
+        side 2), for a round shape that meets the other with none of its points: a capsule across
+        another, or across a box's edge; where the cores meet, two round cores crossing
+        (_cores_crossing) or a round core through a polytope (_core_through)."""
         a, b, ga, gb = pair
         xa, ra, xb, rb = poses
-        dist, pa, pb = gjk(model, ga, xa, ra, gb, xb, rb)
         if dist > 0.0:
             n = (pa - pb) / dist
             sep = dist - model.geom_radius[ga] - model.geom_radius[gb]
@@ -401,8 +436,11 @@ class ContactDetection(BroadPhase, ManifoldReduction):
                 pair_n = normal
                 faces = ti.Vector([support(model, gb, pb, qb, normal), -support(model, ga, pa, qa, -normal)])
         if not edge and not inside:
-            for side in range(2):
-                self._points_in(model, pair, poses, side, pair_n, faces[side], margin)
+            # sides 0 and 1: each geom's points in the other; side 2 (shapes with round cores): the cores'
+            # closest points, for a round shape whose points found no contact (one pass of _points_in)
+            for side in range(ti.static(3 if model.rigid_has_round else 2)):
+                if side < 2 or (not polytopes and self.found[None] == before):
+                    self._points_in(model, pair, poses, side, pair_n, faces[side % 2], margin)
             # Face clipping where the vertices found are fewer than 4 (a heuristic: 4 found are corners
             # of the contact polygon, though not always all of them, e.g. two quads overlapping in a
             # hexagon), as on a stack or a pyramid, where clipping found nothing new and took 13 % of a
@@ -410,9 +448,6 @@ class ContactDetection(BroadPhase, ManifoldReduction):
             if polytopes and self.found[None] - before < 4:
                 for side in range(2):
                     self._edges_clipped(model, pair, poses, side, pair_n, faces[side], margin)
-        if ti.static(model.rigid_has_round):  # else every pair is two polytopes
-            if not polytopes and self.found[None] == before:
-                self._cores(model, pair, poses, margin)
         if ti.static(self.manifold_points):
             self._reduce(before)
 
