@@ -243,20 +243,20 @@ class RigidContacts(ContactDetection):
         self._collide(model, state, h, collision_sweeps)
 
     @ti.func
-    def run_solve(self, model: ti.template(), state: ti.template(), sweeps, relaxed: ti.template()):
+    def run_solve(self, model: ti.template(), state: ti.template(), sweeps, relaxed):
         """`sweeps` Gauss-Seidel sweeps: friction, then the normal impulse, contact by contact; the
-        normal targets are the biased ones, or with `relaxed` the unbiased ones, after which the impulses
-        are kept for the next step's warm start (_store)."""
+        normal targets are the biased ones (relaxed 0), or the unbiased ones (1), after which the
+        impulses are kept for the next step's warm start (_store)."""
         ti.loop_config(serialize=True)
         for _ in range(sweeps):
             for c in range(self.count[None]):
                 self._solve_contact(model, state, c, relaxed)
-        if ti.static(relaxed):
+        if relaxed == 1:
             ti.loop_config(serialize=True)
             self._store()
 
     @ti.func
-    def _solve_contact(self, model: ti.template(), state: ti.template(), c, relaxed: ti.template()):
+    def _solve_contact(self, model: ti.template(), state: ti.template(), c, relaxed):
         """One contact's friction, then normal impulse, on the bodies' velocities (held in registers)."""
         a, b = self.a[c], self.b[c]
         n, t1, t2 = self.normal[c], self.t1[c], self.t2[c]
@@ -289,7 +289,9 @@ class RigidContacts(ContactDetection):
         wb -= d1 * ti.Vector([rb[1, 0], rb[1, 1], rb[1, 2]]) + d2 * ti.Vector([rb[2, 0], rb[2, 1], rb[2, 2]])
         vn = n.dot(va - vb - self.surface_v[c]) + ti.Vector([ja[0, 0], ja[0, 1], ja[0, 2]]).dot(wa)
         vn -= ti.Vector([jb[0, 0], jb[0, 1], jb[0, 2]]).dot(wb)
-        ln = ti.max(lam[0] + (self.target[c][relaxed] - vn) * k[0], 0.0)
+        targets = self.target[c]
+        target = targets[0] if relaxed == 0 else targets[1]
+        ln = ti.max(lam[0] + (target - vn) * k[0], 0.0)
         dn = ln - lam[0]
         va += dn * ima * n
         wa += dn * ti.Vector([ra[0, 0], ra[0, 1], ra[0, 2]])

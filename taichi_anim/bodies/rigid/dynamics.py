@@ -268,11 +268,25 @@ class RigidDynamics:
         self._kick_bodies(model, state, h)
         c.run_detect(model, state, t, h)
         c.run_prepare(model, state, h, collision_sweeps)
-        c.run_solve(model, state, iterations, 0)
+        if ti.static(model.rigid_serial):
+            # Serial loops: the two solves are passes of one loop, so the kernel holds one copy of the
+            # contact solve (a parallel drift must stay a loop at the kernel's top level).
+            for relaxed in range(2):
+                if relaxed == 1:
+                    self._end_of_step(model, state, t, h, keyframed)
+                c.run_solve(model, state, iterations if relaxed == 0 else relax, relaxed)
+        else:
+            c.run_solve(model, state, iterations, 0)
+            self._end_of_step(model, state, t, h, keyframed)
+            c.run_solve(model, state, relax, 1)  # and keeps the impulses for the next step
+
+    @ti.func
+    def _end_of_step(self, model: ti.template(), state: ti.template(), t, h, keyframed: ti.template()):
+        """Between the biased solve and the relaxation: the drift, and keyframed bodies exactly where their
+        keyframes put them at the step's end."""
         self._drift_bodies(model, state, h)
-        if ti.static(keyframed):  # exactly where the keyframes put them at the substep's end
+        if ti.static(keyframed):
             self._move_keyframed(model, state, t + h, True)
-        c.run_solve(model, state, relax, 1)  # and keeps the impulses for the next step
 
     @ti.kernel
     def _kick(self, model: ti.template(), state: ti.template(), h: float):
