@@ -29,9 +29,7 @@ class DisplacementGuard:
         return (di - dj).norm()
 
     @ti.func
-    def _violations(
-        self, model: ti.template(), state: ti.template(), mark: ti.template(), final: ti.template()
-    ):
+    def _violations(self, model: ti.template(), state: ti.template(), mark, final: ti.template()):
         """Count the guard pairs that could have met in the step: a pair at distance d at x0 cannot meet
         while every material point of one side moves less than d relative to every point of the other,
         and those relative motions are convex combinations of the vertices' (max over vertex pairs).
@@ -46,7 +44,7 @@ class DisplacementGuard:
                 if (state.particle_x[self.vertex[v]] - self.x0[v]).norm() >= self.reach[v]:
                     if self._w(model, v) > 0.0:
                         self.count[7] += 1
-                        if ti.static(mark):
+                        if mark:
                             self.hold[v] = 1
                             self.anchor[v] = 1
         for v in range(self.verts()):
@@ -61,7 +59,7 @@ class DisplacementGuard:
                 free = self._w(model, v) + self._w(model, t[0]) + self._w(model, t[1]) + self._w(model, t[2])
                 if rel >= SAFE * self.vt_d[k] and free > 0.0:
                     self.count[7] += 1
-                    if ti.static(mark):
+                    if mark:
                         self.vt_unsafe[k] = ti.i8(1)
                         self.hold[v] = 1
                         for i in ti.static(range(3)):
@@ -78,7 +76,7 @@ class DisplacementGuard:
                 free = self._w(model, a) + self._w(model, b) + self._w(model, c) + self._w(model, d)
                 if rel >= SAFE * self.ee_d[k] and free > 0.0:
                     self.count[7] += 1
-                    if ti.static(mark):
+                    if mark:
                         self.ee_unsafe[k] = ti.i8(1)
                         self.hold[a] = 1
                         self.hold[b] = 1
@@ -199,18 +197,21 @@ class DisplacementGuard:
 
     @ti.func
     def _hold_passes(self, model: ti.template(), state: ti.template(), final: ti.template()):
+        """HOLD_PASSES passes that hold the vertices of pairs that could have met, then the count of those
+        left (count[7]). Serial: one loop over the passes and the count, so that the kernel holds one
+        copy of _violations (marking or not is a run-time flag)."""
         if ti.static(self.serial_guard):
-            for _pass in range(HOLD_PASSES):
-                self._hold_pass(model, state, final)
+            for p in range(HOLD_PASSES + 1):
+                self._violations(model, state, p < HOLD_PASSES, final)
+                if p < HOLD_PASSES:
+                    self._join_groups()
+                    self._place(model, state)
         else:
             for _pass in ti.static(range(HOLD_PASSES)):
-                self._hold_pass(model, state, final)
-
-    @ti.func
-    def _hold_pass(self, model: ti.template(), state: ti.template(), final: ti.template()):
-        self._violations(model, state, True, final)
-        self._join_groups()
-        self._place(model, state)
+                self._violations(model, state, True, final)
+                self._join_groups()
+                self._place(model, state)
+            self._violations(model, state, False, final)
 
     @ti.func
     def _finish_all(self, model: ti.template(), state: ti.template(), h, final: ti.template()):
@@ -229,7 +230,6 @@ class DisplacementGuard:
         # vertex within its bound: all held, every pair is safe (gamma < 1/2).
         if ti.static(self.guard):
             self._hold_passes(model, state, final)
-            self._violations(model, state, False, final)
             if self.count[7] > 0:
                 self.count[6] += 1
             self._clamp_all(model, state)
