@@ -207,3 +207,20 @@ def test_bad_self_contact_options_raise():
         b.add_cloth_self_contact(thickness=-1.0)
     with pytest.raises(ParameterError, match="bound_fraction"):
         b.add_cloth_self_contact(bound_fraction=0.7)
+
+
+def test_every_edge_has_one_owner_the_lowest_triangle_holding_it():
+    """owned_edges: the edge-edge queries find an edge through its owner triangle, so every edge must be
+    owned exactly once, by a triangle that holds it, the first one in index order."""
+    from taichi_anim.collision.self_contact import mesh_edges, owned_edges
+
+    rng = np.random.default_rng(3)
+    tri = np.array([rng.choice(12, 3, replace=False) for _ in range(40)])
+    edges = mesh_edges(tri)
+    owned = owned_edges(tri, edges)
+    ids = owned[owned >= 0]
+    assert np.array_equal(np.sort(ids), np.arange(len(edges)))  # each edge once
+    for f, k in zip(*np.nonzero(owned >= 0), strict=True):
+        edge = set(edges[owned[f, k]])
+        assert edge <= set(tri[f])
+        assert not any(edge <= set(tri[h]) for h in range(f))
