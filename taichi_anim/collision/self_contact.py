@@ -33,8 +33,9 @@ positions x0 (intersection-free) and its end positions x1:
    looked for again from there (a second round). Only the last resort (every vertex held, after
    HOLD_PASSES) and a group with a pinned vertex do not keep momentum.
 
-Candidate pairs come from box structures over the triangles and the edges at x0 (a BVH, spatial/), refit
-every step, each primitive's box grown by its reach r = m + KEEP thickness / 2 for a vertex that the
+Candidate pairs come from a box structure over the triangles at x0 (a BVH, spatial/), refit every step
+(an edge's candidates are the edges owned by the triangles its box meets: owned_edges), each primitive's
+box grown by its reach r = m + KEEP thickness / 2 for a vertex that the
 method moved by m: a pair farther apart than both sides' reaches cannot meet while every vertex moves
 less than its reach (a vertex moved past its reach by the sweeps is held), and every pair that can come
 within KEEP thicknesses is found.
