@@ -262,7 +262,6 @@ def collide(colliders: ti.template(), mode: ti.template(), x0, v0, x1, v1, t, dt
         # letting the safety projection push it out of whichever side is nearest, possibly the far
         # side of a thin solid.
         for k in range(MAX_HITS + 1):
-            hit = False
             xs, vs, xe, ve, frac, nb, hit = _impact(
                 colliders, xs, vs, xe, ve, frac, t, dt, r, rest_speed, nb, k == MAX_HITS
             )

@@ -6,7 +6,8 @@ own index passed through, `ret` its accumulator, passed by reference): `for_each
 visits every primitive whose box meets the closed box [lo, hi]; `for_each_in_sphere(i, c, r, ...)` every
 primitive whose box lies within distance r of c; `for_each_ray(i, o, d, t_max, ...)` every primitive
 whose box the segment o + t d, t in [0, t_max], touches; `traverse(i, q, score, visit, ret)` is the
-general walk the others use (a best-first order for closest-point and nearest-hit searches).
+general walk the others use, and `traverse_nearest(i, q, score, bound, visit, ret)` the nearest-first walk
+of closest-point and nearest-hit searches, which tightens its bound as it goes.
 
 Depth bound: see lbvh.py; a depth-first traversal that pushes at most one pending sibling per level never
 needs more than STACK_SIZE = 64 stack entries.
