@@ -101,8 +101,11 @@ class ParticleState:
         """(positions (N,3) [m], velocities (N,3) [m/s], alive (N,) bool) of every particle slot, float64,
         in one launch of the kernel snapshot() reads with (_slots: one kernel to compile)."""
         x, v, _, death = self._slots()
-        alive = death > self.time if self.has_lifetimes else np.ones(len(x), dtype=bool)
-        return x.astype(np.float64), v.astype(np.float64), alive
+        return x.astype(np.float64), v.astype(np.float64), self._alive(death, len(x))
+
+    def _alive(self, death, n: int) -> np.ndarray:
+        """(n,) bool from the slots' death times [s] (None without lifetimes: every slot lives)."""
+        return np.ones(n, dtype=bool) if death is None else death > self.time
 
     def _slots(self) -> tuple:
         """(x, v, birth, death) of every slot in one launch (bulk.read); birth and death None without
@@ -141,15 +144,15 @@ class ParticleState:
 
     def alive_mask(self) -> np.ndarray:
         """(N,) bool: particles alive now."""
-        if not self.has_lifetimes:
-            return np.ones(self.model.particle_count, dtype=bool)
-        return bulk.read([self.particle_death], self.model.particle_count)[0] > self.time
+        n = self.model.particle_count
+        death = bulk.read([self.particle_death], n)[0] if self.has_lifetimes else None
+        return self._alive(death, n)
 
     def snapshot(self) -> ParticleSnapshot:
         """Copy the alive particles to NumPy (read-only output; never fed back)."""
         x, v, birth, death = self._slots()
         if self.has_lifetimes:
-            idx = np.nonzero(death > self.time)[0]
+            idx = np.nonzero(self._alive(death, len(x)))[0]
             x, v, birth, death = x[idx], v[idx], birth[idx], death[idx]
         else:
             idx = np.arange(len(x))
