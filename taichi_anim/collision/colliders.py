@@ -27,6 +27,8 @@ allocates it):
   motion                    a RigidMotion (USD writes it as transform ops) or None; deforming: True when
                             its vertices move on their own (USD writes surface_at per frame)
   half_space() -> (n, offset) | None   a plane's n . x = offset (USD draws six as one container)
+  distance_bound (optional, default False)   True when sdf(x, t) never exceeds the distance to the
+                            solid at any time: lets blocked frames skip its tests on clear paths
   allocate(reach, model)    writes what its kernels read into fields, once the Model exists (reach [m]:
                             the largest particle radius; per-size arrays from model.new_field, so that
                             they follow capacity buckets)
@@ -116,6 +118,10 @@ class Collider:
     needs_prepare = False  # no Python-side work before a step
     heavy = False  # small tests: `collide` may unroll them
     shell = False  # a solid: a particle that crossed its surface ends inside, where projection finds it
+    # Whether sdf(x, t) is at most the distance from x to the solid, at every time (a static collider
+    # whose sdf is exact or a lower bound): a path shorter than sdf(x0) - r then touches nothing
+    # (response.path_is_clear), which the blocked frame's packs use to skip the swept tests.
+    distance_bound = False
 
     def key_times(self) -> np.ndarray:
         """Times [s] its motion is keyed at (K,); empty for a static collider."""
@@ -156,6 +162,11 @@ class ColliderAnalytic(Collider):
     @property
     def moving(self) -> bool:
         return self.motion is not None
+
+    @property
+    def distance_bound(self) -> bool:
+        """Static analytic shapes have exact signed distances (plane, box, sphere)."""
+        return self.motion is None
 
     def allocate(self, reach: float = 0.0, model=None) -> None:
         """Write what the kernels read into fields (called once by the Model, after Taichi starts; reach

@@ -25,9 +25,10 @@ import numpy as np
 import taichi as ti
 
 from .. import runtime
+from ..collision.response import distances_bound, path_is_clear
 from ..finish import finished
 from ..runtime import compile_with, data_oriented, np_float
-from ..watchdog import watch_limits
+from ..watchdog import breaks_bounds, watch_limits
 
 # Substeps per launch: a longer frame runs as several launches (the times and birth counts travel as
 # small arrays of this many rows at most).
@@ -38,6 +39,11 @@ NEVER = 2**30  # free_from of a slot whose particle outlives the launch
 # parallel at 1e4 particles, 6.4 and 5.6 at 3e4, 6.0 and 5.0 at 1e5, 6.1 and 4.1 at 1e6 (the serial
 # pass that plans births, and the thread pool's wake-up, do not shrink with a second core).
 SERIAL_BELOW = 300_000
+# Particles per pack on the CPU (see BlockedFrame.advance_pack): 8 lanes of f32 fill an AVX register, 16
+# made the pack's code twice as long (its compile with it) for no gain in a trial on the 2-core Xeon.
+PACK = 8
+# None: packs wherever they apply (`packs_apply`); False: one particle per iteration (tests compare both).
+PACKED = None
 
 
 @data_oriented
@@ -70,6 +76,7 @@ class BlockedFrame:
             rows = [[*e.slot_range(), e.start + e.capacity] for e in model.emitters]
             # int32 (GPU backends without 64-bit integers); the u32 masks travel as their bit patterns.
             self.ranges = np.array(rows, np.int64).astype(np.uint32).view(np.int32)
+        self.packed = packs_apply(model) if PACKED is None else PACKED and packs_apply(model)
 
     def run(self, state, h: float, count: int) -> None:
         """`count` substeps of h [s] from the state's time (the caller advances time and step count)."""
@@ -178,20 +185,112 @@ class BlockedFrame:
         # 3. Each particle through the frame. One particle per iteration, not a word: Taichi cuts a CPU
         # loop into tasks of at least 512 iterations, and a loop over words left one thread idle up to
         # ~5e5 particles. Pass 1 cleared the live slots' bits; the few slots free at the end set theirs.
-        ti.loop_config(serialize=serial)
-        for i in range(model.live_particles()):
-            free = self.advance(model, state, method, i, times, ranges, steps, h, seed, step0, head)
-            if ti.static(self.lifetimes):
-                if free:
-                    ti.atomic_or(state.particle_free[i >> 5], ti.u32(1) << ti.cast(i & 31, ti.u32))
+        if ti.static(self.packed):
+            ti.loop_config(serialize=serial)
+            for p in range((model.live_particles() + PACK - 1) // PACK):
+                self.advance_pack(model, state, method, p * PACK, times, ranges, steps, h, seed, step0, head)
+        else:
+            ti.loop_config(serialize=serial)
+            for i in range(model.live_particles()):
+                x, v, birth, death, m = self.start_of(state, i)
+                lim = watch_limits(state)
+                for k in range(steps):
+                    x, v, birth, death, m = self.substep_of(
+                        model,
+                        state,
+                        method,
+                        i,
+                        x,
+                        v,
+                        birth,
+                        death,
+                        m,
+                        k,
+                        times,
+                        ranges,
+                        h,
+                        seed,
+                        step0,
+                        head,
+                        lim,
+                    )
+                self.end_of(state, i, x, v, birth, death, steps)
 
     @ti.func
-    def advance(
+    def start_of(self, state: ti.template(), i):
+        """Particle i at the launch's start: (x, v, birth, death, the head of its chain of births)."""
+        birth = ti.cast(0.0, float)
+        death = ti.cast(0.0, float)
+        m = -1
+        if ti.static(self.lifetimes):
+            birth = state.particle_birth[i]
+            death = state.particle_death[i]
+            m = self.birth_head[i]
+        return state.particle_x[i], state.particle_v[i], birth, death, m
+
+    @ti.func
+    def end_of(self, state: ti.template(), i, x, v, birth, death, steps):
+        """Particle i's end of the launch written, and its slot's free bit set if it ends free."""
+        state.particle_x[i] = x
+        state.particle_v[i] = v
+        if ti.static(self.lifetimes):
+            state.particle_birth[i] = birth
+            state.particle_death[i] = death
+            if self.free_from[i] <= steps:
+                ti.atomic_or(state.particle_free[i >> 5], ti.u32(1) << ti.cast(i & 31, ti.u32))
+
+    @ti.func
+    def substep_of(
         self,
         model: ti.template(),
         state: ti.template(),
         method: ti.template(),
         i,
+        x,
+        v,
+        birth,
+        death,
+        m,
+        k,
+        times: ti.template(),
+        ranges: ti.template(),
+        h,
+        seed,
+        step0,
+        head,
+        lim,
+    ):
+        """Particle i (at x, v, with its birth and death times and its next birth m in the chain) through
+        substep k, born first where its chain says, its trail column head + k written after it as
+        State.record_trails does: the new (x, v, birth, death, m)."""
+        t = ti.cast(times[k], float)
+        if ti.static(self.lifetimes):
+            if m >= 0 and self.birth_step[m] == k:  # Emitter._spawn_one, before the step's update
+                for e in ti.static(model.emitters):
+                    start = ranges[e.index, 0]
+                    if start <= i and i < ranges[e.index, 5]:
+                        j = ti.cast(start + self.birth_index[m], ti.u32)
+                        x, v, life = e._sample(seed, ti.cast(step0 + k, ti.u32), j)
+                        birth = t
+                        death = t + life
+                        if ti.static(state.trail_length > 0):  # a new particle's trail starts at birth
+                            for c in range(state.trail_length):
+                                state.trail[i, c] = x
+                m = self.birth_next[m]
+            if death > t:  # alive at the step's start (Integrator._final)
+                x, v = self.substep(model, state, method, i, x, v, t, h, step0 + k + 1, lim)
+        else:
+            x, v = self.substep(model, state, method, i, x, v, t, h, step0 + k + 1, lim)
+        self.record_trail(state, i, x, head + k)
+        return x, v, birth, death, m
+
+    @ti.func
+    def advance_pack(
+        self,
+        model: ti.template(),
+        state: ti.template(),
+        method: ti.template(),
+        base,
         times: ti.template(),
         ranges: ti.template(),
         steps,
@@ -200,46 +299,107 @@ class BlockedFrame:
         step0,
         head,
     ):
-        """Particle i through `steps` substeps (born on the way where its chain says), its trail column
-        head + k written after substep k as State.record_trails does; returns whether its slot ends the
-        launch free."""
-        x = state.particle_x[i]
-        v = state.particle_v[i]
+        """Particles base .. base + PACK - 1 through the frame as one pack: the same arithmetic per
+        particle as the loop of `substep_of`, written so that LLVM's straight-line (SLP) vectoriser runs
+        the pack's lanes in one vector register. Taichi runs each iteration of a parallel loop as a call
+        of its body, so a loop over particles is never vectorised; PACK copies of the update, one per
+        lane with constant indices into small local matrices, are straight-line code that is.
+
+        A substep in which every lane is quiet (no birth; dead, or alive on a path that `path_is_clear`
+        vouches for and inside the watchdog's bounds) ends at the update, which is then what `finished`
+        would return; those substeps run in an inner loop that writes no memory, so LLVM keeps the
+        particles' constant data (mass, radius) in registers. A substep with a lane that is not quiet runs
+        every lane through `substep_of`, one at a time, exactly as the particle loop would."""
+        n = model.live_particles()
         lim = watch_limits(state)
-        free = False
-        if ti.static(self.lifetimes):
-            birth = state.particle_birth[i]
-            death = state.particle_death[i]
-            m = self.birth_head[i]
-            for k in range(steps):
+        X = ti.Matrix.zero(float, 3, PACK)
+        V = ti.Matrix.zero(float, 3, PACK)
+        B = ti.Vector.zero(float, PACK)
+        D = ti.Vector.zero(float, PACK)  # death time; without lifetimes a time no lane reaches (alive)
+        M = ti.Vector.zero(ti.i32, PACK)
+        NB = ti.Vector.zero(ti.i32, PACK)  # the substep of the lane's next birth (NEVER: none)
+        for j in ti.static(range(PACK)):
+            x, v, birth, death, m = self.start_of(state, ti.min(base + j, n - 1))
+            for c in ti.static(range(3)):
+                X[c, j] = x[c]
+                V[c, j] = v[c]
+            B[j] = birth
+            D[j] = -1e30  # a lane past the end is dead throughout, and never written
+            M[j] = -1
+            NB[j] = NEVER
+            if base + j < n:
+                D[j] = 1e30
+                if ti.static(self.lifetimes):
+                    D[j] = death
+                    M[j] = m
+                    if m >= 0:
+                        NB[j] = self.birth_step[m]
+        k = 0
+        while k < steps:
+            while k < steps:  # quiet substeps: no memory written
                 t = ti.cast(times[k], float)
-                if m >= 0 and self.birth_step[m] == k:  # Emitter._spawn_one, before the step's update
-                    for e in ti.static(model.emitters):
-                        start = ranges[e.index, 0]
-                        if start <= i and i < ranges[e.index, 5]:
-                            j = ti.cast(start + self.birth_index[m], ti.u32)
-                            x, v, life = e._sample(seed, ti.cast(step0 + k, ti.u32), j)
-                            birth = t
-                            death = t + life
-                            if ti.static(state.trail_length > 0):  # a new particle's trail starts at birth
-                                for c in range(state.trail_length):
-                                    state.trail[i, c] = x
-                    m = self.birth_next[m]
-                if death > t:  # alive at the step's start (Integrator._final)
-                    x, v = self.substep(model, state, method, i, x, v, t, h, step0 + k + 1, lim)
-                self.record_trail(state, i, x, head + k)
-            state.particle_birth[i] = birth
-            state.particle_death[i] = death
-            free = self.free_from[i] <= steps
-        else:
-            for k in range(steps):
-                x, v = self.substep(
-                    model, state, method, i, x, v, ti.cast(times[k], float), h, step0 + k + 1, lim
-                )
-                self.record_trail(state, i, x, head + k)
-        state.particle_x[i] = x
-        state.particle_v[i] = v
-        return free
+                X1 = X
+                V1 = V
+                quiet = True
+                for j in ti.static(range(PACK)):
+                    i = ti.min(base + j, n - 1)
+                    x = ti.Vector([X[0, j], X[1, j], X[2, j]])
+                    v = ti.Vector([V[0, j], V[1, j], V[2, j]])
+                    x1, v1 = method.update(model, i, x, v, t, h)
+                    live = D[j] > t
+                    fine = not breaks_bounds(state, lim, x1, v1)
+                    if ti.static(model.collider_count > 0):
+                        fine &= path_is_clear(model.colliders, x, x1, t, model.radius(i))
+                    quiet &= (NB[j] != k) & (fine | (D[j] <= t))  # `|`, not `or`: no branch
+                    for c in ti.static(range(3)):
+                        X1[c, j] = ti.select(live, x1[c], x[c])
+                        V1[c, j] = ti.select(live, v1[c], v[c])
+                if not quiet:
+                    break
+                X = X1
+                V = V1
+                k += 1
+            if k < steps:  # substep k, particle by particle (copies: a run-time lane index)
+                Xs, Vs, Bs, Ds, Ms, NBs = X, V, B, D, M, NB
+                for j in range(PACK):
+                    i = base + j
+                    if i < n:
+                        x, v, birth, death, m = self.substep_of(
+                            model,
+                            state,
+                            method,
+                            i,
+                            ti.Vector([Xs[0, j], Xs[1, j], Xs[2, j]]),
+                            ti.Vector([Vs[0, j], Vs[1, j], Vs[2, j]]),
+                            Bs[j],
+                            Ds[j],
+                            Ms[j],
+                            k,
+                            times,
+                            ranges,
+                            h,
+                            seed,
+                            step0,
+                            head,
+                            lim,
+                        )
+                        for c in ti.static(range(3)):
+                            Xs[c, j] = x[c]
+                            Vs[c, j] = v[c]
+                        Bs[j] = birth
+                        Ds[j] = death
+                        Ms[j] = m
+                        if ti.static(self.lifetimes):
+                            NBs[j] = NEVER
+                            if m >= 0:
+                                NBs[j] = self.birth_step[m]
+                X, V, B, D, M, NB = Xs, Vs, Bs, Ds, Ms, NBs
+                k += 1
+        for j in ti.static(range(PACK)):
+            if base + j < n:
+                x = ti.Vector([X[0, j], X[1, j], X[2, j]])
+                v = ti.Vector([V[0, j], V[1, j], V[2, j]])
+                self.end_of(state, base + j, x, v, B[j], D[j], steps)
 
     @ti.func
     def record_trail(self, state: ti.template(), i, x, column):
@@ -311,3 +471,11 @@ class BlockedFrame:
         w = slot >> 5
         self.word_bits[w] ^= ti.u32(1) << ti.cast(slot & 31, ti.u32)  # taken (it was free)
         self.word_next[w] = ti.min(self.word_next[w], free)
+
+
+def packs_apply(model) -> bool:
+    """Whether a blocked frame of `model` runs its particles in packs (BlockedFrame.advance_pack): on the
+    CPU (a GPU runs lanes as threads already), without trails (a store per substep would keep the
+    quiet substeps' loads in the loop), and with colliders whose sdf bounds their distance
+    (`path_is_clear` cannot vouch for a mesh's or a moving collider's)."""
+    return runtime.backend_name() == "cpu" and model.trail_length == 0 and distances_bound(model.colliders)
