@@ -6,7 +6,8 @@ container box [-1, 1] x [0, 2] x [-1, 1] m with restitution 0.5; dt = 1/600 s, f
 Measured once the pool is full: particle-steps/s = alive x steps / wall time, alive counted after the
 timed frames (not inside them: on a GPU that count is a copy of every death time to the host). Ours runs
 a frame the two ways the engine can: `Stepper.advance(state, dt, 10)` (the default for a scene's frame:
-one blocked launch takes each particle through the 10 substeps, integrators/blocked.py) and ten
+one blocked launch takes each particle through the 10 substeps, integrators/blocked.py, on the CPU in
+packs of 8 particles; also timed with packs off, one particle per iteration) and ten
 `step(state, dt)` calls (one emission and one fused step kernel per substep, the path before blocked
 frames). Bytes per particle-step: the per-step path moves x, v read and written and the death time read,
 52 B; the blocked frame about 80 B per particle per frame (x, v, birth, death read and written, its
@@ -26,6 +27,7 @@ import numpy as np
 from harness import Page, Run, clock, compile_times, fmt_s, init, log, parse_args, time_run
 
 import taichi_anim as ta
+import taichi_anim.integrators.blocked as blocked
 
 DT, STEPS = 1.0 / 600.0, 10
 LO, HI, RESTITUTION = (-1.0, 0.0, -1.0), (1.0, 2.0, 1.0), 0.5
@@ -36,6 +38,7 @@ BYTES = 2 * 3 * 4 * 2 + 4  # per alive particle-step of the per-step fused kerne
 # and written (2 x 32 B), the free bits (1/8 B), its scratch free_from and birth_head written and read
 # (16 B): ~80 B a frame of STEPS substeps.
 FRAME_BYTES = (2 * 32 + 1 / 8 + 16) / STEPS
+ENGINES = ("taichi_anim", "one per iteration", "per step", "numpy")
 FILL_FRAMES = math.ceil(LIFETIME * (1 + LIFE_JITTER) / DT / STEPS) + 2
 
 
@@ -60,9 +63,11 @@ def build(n: int):
     return model, model.state(), ta.make_integrator("symplectic_euler", check_every=STEPS)
 
 
-def ours(n: int, alive: list, per_step: bool = False, arch: str = "cpu"):
-    """A frame of ours; alive[0] counts the particles alive (call it after the timing)."""
+def ours(n: int, alive: list, per_step: bool = False, arch: str = "cpu", packed=None):
+    """A frame of ours; alive[0] counts the particles alive (call it after the timing). packed=False:
+    the blocked frame takes one particle per iteration instead of packs (integrators/blocked.py)."""
     init("f32", arch)
+    blocked.PACKED = packed
     model, state, integ = build(n)
     stepper = integ.stepper_for(model)
 
@@ -174,6 +179,7 @@ def main(argv=None) -> None:
         res = {}
         engines = (
             ("taichi_anim", lambda n, a: ours(n, a, False, arch)),
+            ("one per iteration", lambda n, a: ours(n, a, False, arch, packed=False)),
             ("per step", lambda n, a: ours(n, a, True, arch)),
             ("numpy", numpy_peer),
         )
@@ -186,11 +192,12 @@ def main(argv=None) -> None:
             r["rate"] = r["alive"] * STEPS / r["median"]
             res[name] = r
         t, s, p = res["taichi_anim"], res["per step"], res["numpy"]
+        one = res["one per iteration"]
         gbs, step_gbs = FRAME_BYTES * t["rate"] / 1e9, BYTES * s["rate"] / 1e9
-        rows.append(
-            [f"{n:.0e}", f"{t['alive'] / n:.3f}", f"{t['rate']:.3g}", f"{s['rate']:.3g}", f"{p['rate']:.3g}"]
-        )
-        rows[-1] += [f"**{t['rate'] / p['rate']:.2f}x**", f"{s['rate'] / p['rate']:.2f}x"]
+        rows.append([f"{n:.0e}", f"{t['alive'] / n:.3f}", f"{t['rate']:.3g}", f"{one['rate']:.3g}"])
+        rows[-1] += [f"{s['rate']:.3g}", f"{p['rate']:.3g}"]
+        rows[-1] += [f"**{t['rate'] / p['rate']:.2f}x**", f"{one['rate'] / p['rate']:.2f}x"]
+        rows[-1] += [f"{s['rate'] / p['rate']:.2f}x"]
         rows[-1] += [f"{gbs:.1f}", f"{gbs / bw:.2f}", f"{step_gbs / bw:.2f}", f"{t['cores']:.2f}"]
         data.append({"n": n, **res})
     page = Page(
@@ -201,7 +208,9 @@ def main(argv=None) -> None:
             "arch": f"taichi_anim {arch}; NumPy on one host core",
             "scene": "disc emitter (pool N, lifetime 0.5 s +-20 %), gravity, box (restitution 0.5)",
             "step": f"symplectic Euler, dt 1/600 s, {STEPS} steps a frame, f32, after {FILL_FRAMES} frames",
-            "taichi_anim": f"Stepper.advance(state, dt, {STEPS}): one blocked launch per frame",
+            "taichi_anim": f"Stepper.advance(state, dt, {STEPS}): one blocked launch per frame, particles "
+            f"in packs of {blocked.PACK} on the CPU",
+            "one per iteration": "the same launch with packs off (blocked.PACKED = False)",
             "per step": f"{STEPS} x Stepper.step(state, dt): emission + fused step kernel per substep",
             "frames timed": frames,
             "bytes per particle-step": f"per step {BYTES}; blocked frame {FRAME_BYTES:g}",
@@ -214,9 +223,11 @@ def main(argv=None) -> None:
             "N",
             "alive",
             "taichi_anim particle-steps/s",
+            "one per iteration",
             "per step",
             "NumPy",
             "speed-up",
+            "one per iteration / NumPy",
             "per step / NumPy",
             "GB/s moved",
             "of copy bandwidth",
@@ -232,7 +243,10 @@ def main(argv=None) -> None:
         comp_rows,
     )
     page.plot(
-        {k: (sizes, [d[k]["rate"] for d in data]) for k in ("taichi_anim", "per step", "numpy")},
+        {
+            k: (sizes, [d[k]["rate"] for d in data])
+            for k in ("taichi_anim", "one per iteration", "per step", "numpy")
+        },
         xlabel="particles",
         ylabel="particle-steps/s",
     )

@@ -30,8 +30,8 @@ from ..finish import finished
 from ..runtime import compile_with, data_oriented, np_float
 from ..watchdog import breaks_bounds, watch_limits
 
-# Substeps per launch: a longer frame runs as several launches (the times and birth counts travel as
-# small arrays of this many rows at most).
+# Substeps per launch: a longer frame runs as several launches (the plan of times and birth counts travels
+# as a small array of this many rows at most).
 MAX_STEPS = 64
 NEVER = 2**30  # free_from of a slot whose particle outlives the launch
 # A launch's loops run serially on the CPU below this many particle-steps (capacity x substeps): the
@@ -60,7 +60,7 @@ class BlockedFrame:
         self.capacity = model.particle_capacity
         # (start, word_lo, word_hi, mask_lo, mask_hi, end) per emitter: arguments, not constants, so
         # that another pool size compiles nothing new.
-        self.ranges = np.zeros((1, 6), np.int32)
+        rows = np.zeros((1, 6), np.int32)
         if self.lifetimes:
             arr = model.particle_array
             self.free_from = arr(self, "blocked_free_from", ti.i32)
@@ -75,18 +75,24 @@ class BlockedFrame:
             self.word_next = model.new_field(self, "blocked_word_next", ti.i32, words)
             rows = [[*e.slot_range(), e.start + e.capacity] for e in model.emitters]
             # int32 (GPU backends without 64-bit integers); the u32 masks travel as their bit patterns.
-            self.ranges = np.array(rows, np.int64).astype(np.uint32).view(np.int32)
+            rows = np.array(rows, np.int64).astype(np.uint32).view(np.int32)
+        # A field written once: each array argument costs a launch about 20 us on the Xeon (a frame of
+        # 1e4 particles in packs takes 0.45 ms), so the frame's plan travels as one array.
+        self.ranges = model.new_field(self, "blocked_ranges", ti.i32, rows.shape)
+        self.ranges.from_numpy(rows)
         self.packed = packs_apply(model) if PACKED is None else PACKED and packs_apply(model)
 
     def run(self, state, h: float, count: int) -> None:
         """`count` substeps of h [s] from the state's time (the caller advances time and step count)."""
         model = self.model
-        times = np.empty(count)  # each substep's start, accumulated as `count` calls of Stepper.step do
+        # The plan, one row per substep: its start time, accumulated as `count` calls of Stepper.step do,
+        # then each emitter's births as the bits of an integer of the float's width (exact at any count).
+        plan = np.zeros((count, 1 + model.emitter_count), np_float())
+        births = plan[:, 1:].view(np.int32 if plan.dtype == np.float32 else np.int64)
         t = state.time
         for k in range(count):
-            times[k] = t
+            plan[k, 0] = t
             t += h
-        births = np.zeros((count, max(model.emitter_count, 1)), np.int32)
         for k in range(count):
             for e in model.emitters:
                 births[k, e.index] = e.plan(state, h)
@@ -103,9 +109,7 @@ class BlockedFrame:
                 model,
                 state,
                 self.method,
-                times[first:end].astype(np_float()),
-                births[first:end],
-                self.ranges,
+                plan[first:end],
                 end - first,
                 h,
                 model.seed,
@@ -126,9 +130,7 @@ class BlockedFrame:
         model: ti.template(),
         state: ti.template(),
         method: ti.template(),
-        times: ti.types.ndarray(ndim=1),
-        births: ti.types.ndarray(dtype=ti.i32, ndim=2),
-        ranges: ti.types.ndarray(dtype=ti.i32, ndim=2),
+        plan: ti.types.ndarray(ndim=2),
         steps: ti.i32,
         h: float,
         seed: ti.u32,
@@ -148,7 +150,7 @@ class BlockedFrame:
                         bit = ti.u32(1) << ti.cast(b, ti.u32)
                         free = 0
                         if (state.particle_free[w] & bit) == 0:
-                            free = self.free_step(state.particle_death[i], times, 0, steps, h)
+                            free = self.free_step(state.particle_death[i], plan, 0, steps, h)
                         self.free_from[i] = free
                         self.birth_head[i] = -1
                         if free == 0:
@@ -168,19 +170,19 @@ class BlockedFrame:
                 self.birth_count[None] = 0
                 for k in range(steps):
                     for e in ti.static(model.emitters):
-                        n = births[k, e.index]
+                        n = self.births_of(plan, k, e.index)
                         if n > 0:
                             r = e.index
                             e.scan(
                                 state,
                                 n,
-                                ranges[r, 0],
-                                ranges[r, 1],
-                                ranges[r, 2],
-                                ti.cast(ranges[r, 3], ti.u32),
-                                ti.cast(ranges[r, 4], ti.u32),
+                                self.ranges[r, 0],
+                                self.ranges[r, 1],
+                                self.ranges[r, 2],
+                                ti.cast(self.ranges[r, 3], ti.u32),
+                                ti.cast(self.ranges[r, 4], ti.u32),
                                 self,
-                                (k, e, times, steps, h, seed, step0),
+                                (k, e, plan, steps, h, seed, step0),
                             )
         # 3. Each particle through the frame. One particle per iteration, not a word: Taichi cuts a CPU
         # loop into tasks of at least 512 iterations, and a loop over words left one thread idle up to
@@ -188,7 +190,7 @@ class BlockedFrame:
         if ti.static(self.packed):
             ti.loop_config(serialize=serial)
             for p in range((model.live_particles() + PACK - 1) // PACK):
-                self.advance_pack(model, state, method, p * PACK, times, ranges, steps, h, seed, step0, head)
+                self.advance_pack(model, state, method, p * PACK, plan, steps, h, seed, step0, head)
         else:
             ti.loop_config(serialize=serial)
             for i in range(model.live_particles()):
@@ -206,8 +208,7 @@ class BlockedFrame:
                         death,
                         m,
                         k,
-                        times,
-                        ranges,
+                        plan,
                         h,
                         seed,
                         step0,
@@ -252,8 +253,7 @@ class BlockedFrame:
         death,
         m,
         k,
-        times: ti.template(),
-        ranges: ti.template(),
+        plan: ti.template(),
         h,
         seed,
         step0,
@@ -263,12 +263,12 @@ class BlockedFrame:
         """Particle i (at x, v, with its birth and death times and its next birth m in the chain) through
         substep k, born first where its chain says, its trail column head + k written after it as
         State.record_trails does: the new (x, v, birth, death, m)."""
-        t = ti.cast(times[k], float)
+        t = self.time_of(plan, k)
         if ti.static(self.lifetimes):
             if m >= 0 and self.birth_step[m] == k:  # Emitter._spawn_one, before the step's update
                 for e in ti.static(model.emitters):
-                    start = ranges[e.index, 0]
-                    if start <= i and i < ranges[e.index, 5]:
+                    start = self.ranges[e.index, 0]
+                    if start <= i and i < self.ranges[e.index, 5]:
                         j = ti.cast(start + self.birth_index[m], ti.u32)
                         x, v, life = e._sample(seed, ti.cast(step0 + k, ti.u32), j)
                         birth = t
@@ -291,8 +291,7 @@ class BlockedFrame:
         state: ti.template(),
         method: ti.template(),
         base,
-        times: ti.template(),
-        ranges: ti.template(),
+        plan: ti.template(),
         steps,
         h,
         seed,
@@ -308,8 +307,9 @@ class BlockedFrame:
         A substep in which every lane is quiet (no birth; dead, or alive on a path that `path_is_clear`
         vouches for and inside the watchdog's bounds) ends at the update, which is then what `finished`
         would return; those substeps run in an inner loop that writes no memory, so LLVM keeps the
-        particles' constant data (mass, radius) in registers. A substep with a lane that is not quiet runs
-        every lane through `substep_of`, one at a time, exactly as the particle loop would."""
+        particles' constant data (mass, radius) in registers. In a substep with a lane that is not quiet,
+        that lane goes through `substep_of` as the particle loop would take it, and the quiet ones keep
+        their update (which is what `substep_of` would give them)."""
         n = model.live_particles()
         lim = watch_limits(state)
         X = ti.Matrix.zero(float, 3, PACK)
@@ -335,11 +335,12 @@ class BlockedFrame:
                     if m >= 0:
                         NB[j] = self.birth_step[m]
         k = 0
+        X1 = X  # the update of substep k, and which lanes are quiet in it
+        V1 = V
+        Q = ti.Vector.zero(ti.i32, PACK)
         while k < steps:
             while k < steps:  # quiet substeps: no memory written
-                t = ti.cast(times[k], float)
-                X1 = X
-                V1 = V
+                t = self.time_of(plan, k)
                 quiet = True
                 for j in ti.static(range(PACK)):
                     i = ti.min(base + j, n - 1)
@@ -350,7 +351,9 @@ class BlockedFrame:
                     fine = not breaks_bounds(state, lim, x1, v1)
                     if ti.static(model.collider_count > 0):
                         fine &= path_is_clear(model.colliders, x, x1, t, model.radius(i))
-                    quiet &= (NB[j] != k) & (fine | (D[j] <= t))  # `|`, not `or`: no branch
+                    q = (NB[j] != k) & (fine | (D[j] <= t))  # `|`, not `or`: no branch
+                    Q[j] = ti.cast(q, ti.i32)
+                    quiet &= q
                     for c in ti.static(range(3)):
                         X1[c, j] = ti.select(live, x1[c], x[c])
                         V1[c, j] = ti.select(live, v1[c], v[c])
@@ -359,24 +362,26 @@ class BlockedFrame:
                 X = X1
                 V = V1
                 k += 1
-            if k < steps:  # substep k, particle by particle (copies: a run-time lane index)
-                Xs, Vs, Bs, Ds, Ms, NBs = X, V, B, D, M, NB
+            if k < steps:
+                # Substep k: the quiet lanes keep their update, the others go through the particle path
+                # one at a time (copies: a run-time lane index).
+                Xk, Vk, Qk = X, V, Q
+                Xs, Vs, Bs, Ds, Ms, NBs = X1, V1, B, D, M, NB
                 for j in range(PACK):
                     i = base + j
-                    if i < n:
+                    if i < n and Qk[j] == 0:
                         x, v, birth, death, m = self.substep_of(
                             model,
                             state,
                             method,
                             i,
-                            ti.Vector([Xs[0, j], Xs[1, j], Xs[2, j]]),
-                            ti.Vector([Vs[0, j], Vs[1, j], Vs[2, j]]),
+                            ti.Vector([Xk[0, j], Xk[1, j], Xk[2, j]]),
+                            ti.Vector([Vk[0, j], Vk[1, j], Vk[2, j]]),
                             Bs[j],
                             Ds[j],
                             Ms[j],
                             k,
-                            times,
-                            ranges,
+                            plan,
                             h,
                             seed,
                             step0,
@@ -414,18 +419,29 @@ class BlockedFrame:
         return finished(model, state, method.collision_mode, i, x, v, x1, v1, t, h, step, lim)
 
     @ti.func
-    def free_step(self, death, times: ti.template(), k0, steps, h):
+    def free_step(self, death, plan: ti.template(), k0, steps, h):
         """One after the first substep k >= k0 whose final kernel releases a particle dying at `death`
         [s] (death <= t_k + h: Integrator._final's release_if_dead, or release if dead at t_k), else
         NEVER: the first substep at whose start its slot is free."""
         free = NEVER
-        if death <= ti.cast(times[steps - 1], float) + h:  # most particles outlive the launch: one test
+        if death <= self.time_of(plan, steps - 1) + h:  # most particles outlive the launch: one test
             for k in range(k0, steps):
-                if free == NEVER and death <= ti.cast(times[k], float) + h:
+                if free == NEVER and death <= self.time_of(plan, k) + h:
                     free = k + 1
         return free
 
-    # Emitter.scan reads and takes slots through these two, ctx = (substep, emitter, times, substeps, h,
+    @ti.func
+    def time_of(self, plan: ti.template(), k):
+        """Substep k's start time [s] in the launch's plan."""
+        return ti.cast(plan[k, 0], float)
+
+    @ti.func
+    def births_of(self, plan: ti.template(), k, e):
+        """Emitter e's births at substep k in the launch's plan (an integer's bits in a float's place)."""
+        bits = ti.i32 if ti.static(np_float() == np.float32) else ti.i64
+        return ti.cast(ti.bit_cast(plan[k, 1 + e], bits), ti.i32)
+
+    # Emitter.scan reads and takes slots through these two, ctx = (substep, emitter, plan, substeps, h,
     # seed, first step number).
     @ti.func
     def free_bits(self, state: ti.template(), w, ctx: ti.template()):
@@ -452,7 +468,7 @@ class BlockedFrame:
     def take(self, state: ti.template(), slot, found, start, ctx: ti.template()):
         """Record the birth in `slot` at substep k as the found-th of the step's batch, and when the new
         particle's slot is free again (its lifetime: Emitter.lifetime_of, _sample's own draw)."""
-        # ctx = (k, emitter, times, steps, h, seed, step0), read in place (an array cannot be assigned).
+        # ctx = (k, emitter, plan, steps, h, seed, step0), read in place (an array cannot be assigned).
         k = ctx[0]
         m = self.birth_count[None]
         self.birth_count[None] = m + 1
@@ -465,7 +481,7 @@ class BlockedFrame:
             self.birth_next[self.birth_tail[slot]] = m
         self.birth_tail[slot] = m
         life = ctx[1].lifetime_of(ctx[5], ti.cast(ctx[6] + k, ti.u32), ti.cast(start + found, ti.u32))
-        death = ti.cast(ctx[2][k], float) + life
+        death = self.time_of(ctx[2], k) + life
         free = self.free_step(death, ctx[2], k, ctx[3], ctx[4])
         self.free_from[slot] = free
         w = slot >> 5
