@@ -28,7 +28,7 @@ def _frames(make, packed, monkeypatch, frames=12, substeps=10, h=1.0 / 600.0):
     for _ in range(frames):
         stepper.advance(state, h, substeps)
     assert stepper.frame_mode()["mode"] == "blocked"
-    assert stepper._blocked.packed == (packed is None)
+    assert stepper._blocked.packed == packed
     return model, state
 
 
@@ -62,7 +62,7 @@ def _piles(n=203):
 def test_packs_equal_one_particle_per_iteration_bit_for_bit(make, precision, monkeypatch):
     ta.init("cpu", precision=precision)
     model, ref = _frames(make, False, monkeypatch)
-    _, got = _frames(make, None, monkeypatch)
+    _, got = _frames(make, True, monkeypatch)
     names = [k for k in FIELDS if getattr(ref, k) is not None]  # lifetimes and free bits: emitters only
     assert len(names) == (5 if model.emitter_count else 2)
     for name in names:
@@ -88,7 +88,7 @@ def test_packs_stop_at_the_step_that_diverged_with_its_particle(monkeypatch):
         return model, model.state()
 
     found = []
-    for packed in (False, None):
+    for packed in (False, True):
         monkeypatch.setattr(blocked, "PACKED", packed)
         model, state = make()
         stepper = ta.make_integrator("symplectic_euler", check_every=40).stepper_for(model)
@@ -96,9 +96,24 @@ def test_packs_stop_at_the_step_that_diverged_with_its_particle(monkeypatch):
         with pytest.raises(ta.DivergenceError) as info:
             for _ in range(10):
                 stepper.advance(state, 1e-3, 40)
-        assert stepper._blocked.packed == (packed is None)
+        assert stepper._blocked.packed == packed
         found.append((info.value.step, info.value.particle, info.value.quantity))
     assert found[0] == found[1] and found[0][1] == 29 and found[0][2] == "speed"
+
+
+def test_packs_only_where_they_apply_and_from_their_size(monkeypatch):
+    """Packs by default from PACKS_FROM particles, never with trails (a store per substep) or a collider
+    whose sdf does not bound its distance (a mesh), and never on a GPU (`packs_apply`)."""
+    monkeypatch.setattr(blocked, "PACKED", None)
+    for capacity, trails, packed in ((blocked.PACKS_FROM, 0, True), (blocked.PACKS_FROM - 1, 0, False),
+                                     (blocked.PACKS_FROM, 3, False)):  # fmt: skip
+        model, _ = _fountain(capacity=capacity, lifetime=0.05, jitter=0.2, trails=trails)
+        assert blocked.BlockedFrame(model, ta.make_integrator("symplectic_euler")).packed == packed
+    b = ta.Builder()
+    b.add_particles(np.zeros((1, 3)) + [0, 1, 0])
+    b.add_collider_mesh((np.array([[-1.0, 0, -1], [1, 0, -1], [0, 0, 1]]), np.array([[0, 2, 1]])))
+    model = b.finalize()
+    assert not blocked.packs_apply(model)
 
 
 @ti.data_oriented

@@ -42,7 +42,12 @@ SERIAL_BELOW = 300_000
 # Particles per pack on the CPU (see BlockedFrame.advance_pack): 8 lanes of f32 fill an AVX register, 16
 # made the pack's code twice as long (its compile with it) for no gain in a trial on the 2-core Xeon.
 PACK = 8
-# None: packs wherever they apply (`packs_apply`); False: one particle per iteration (tests compare both).
+# Packs from this many particles (the pool's capacity): their kernel compiles about 1.7 s longer with an
+# empty cache and 0.15 s longer with a warm one (the 2-core Xeon), and saves about 2 ns a particle-step,
+# so below this size a frame is too short (under ~0.6 ms of 10 substeps) for them to repay a start.
+PACKS_FROM = 8192
+# None: packs where they apply (`packs_apply`) from PACKS_FROM particles; True: wherever they apply;
+# False: one particle per iteration (tests compare both).
 PACKED = None
 
 
@@ -80,7 +85,8 @@ class BlockedFrame:
         # 1e4 particles in packs takes 0.45 ms), so the frame's plan travels as one array.
         self.ranges = model.new_field(self, "blocked_ranges", ti.i32, rows.shape)
         self.ranges.from_numpy(rows)
-        self.packed = packs_apply(model) if PACKED is None else PACKED and packs_apply(model)
+        wanted = model.particle_capacity >= PACKS_FROM if PACKED is None else PACKED
+        self.packed = wanted and packs_apply(model)
 
     def run(self, state, h: float, count: int) -> None:
         """`count` substeps of h [s] from the state's time (the caller advances time and step count)."""
