@@ -17,7 +17,7 @@ kernels copy nothing.
 
 import numpy as np
 import taichi as ti
-from cloth_warp import ours
+from cloth_warp import ours, theirs
 from harness import Page, Run, fmt_s, host_clock, init, log, parse_args, peer, ratio, time_run, versions
 
 SIZES, QUICK_SIZES = (32, 64, 128, 256), (32, 64)
@@ -143,7 +143,7 @@ def main(argv=None) -> int:
         log(f"{dim}^2")
         cloth = wc.make_cloth(dim)
         runs = [
-            Run("warp_cpu", lambda c=cloth: _warp(wc, c, dt, substeps), sync=host_clock),
+            Run("warp_cpu", lambda c=cloth: theirs(wc, "warp_cpu", c, dt, substeps), sync=host_clock),
             Run("taichi_anim", lambda c=cloth: ours(wc.fresh(c), "cpu", dt, substeps)),
             Run("minimal serial", lambda c=cloth: minimal(wc.fresh(c), False, dt, substeps)),
             Run("minimal parallel", lambda c=cloth: minimal(wc.fresh(c), True, dt, substeps)),
@@ -191,11 +191,6 @@ def main(argv=None) -> int:
     )  # fmt: skip
     page.write({"sizes": data})
     return 0
-
-
-def _warp(wc, cloth, dt: float, substeps: int):
-    integ = wc.make_integrator("warp_cpu", wc.fresh(cloth))
-    return lambda: integ.simulate(dt, substeps)
 
 
 if __name__ == "__main__":
