@@ -91,13 +91,19 @@ class BlockedFrame:
     def run(self, state, h: float, count: int) -> None:
         """`count` substeps of h [s] from the state's time (the caller advances time and step count)."""
         model = self.model
-        # The plan, one row per substep: its start time, accumulated as `count` calls of Stepper.step do,
-        # then each emitter's births as the bits of an integer of the float's width (exact at any count).
-        plan = np.zeros((count, 1 + model.emitter_count), np_float())
-        births = plan[:, 1:].view(np.int32 if plan.dtype == np.float32 else np.int64)
+        # The plan: a header row (h, the seed, the first step number, the first trail column), then one
+        # row per substep: its start time, accumulated as `count` calls of Stepper.step do, and each
+        # emitter's births. Integers travel as the bits of an integer of the float's width (exact at any
+        # count): every scalar argument of a launch costs ~3 us of Taichi's Python, an array ~20 us.
+        plan = np.zeros((count + 1, max(1 + model.emitter_count, 4)), np_float())
+        ints = plan.view(np.int32 if plan.dtype == np.float32 else np.int64)
+        plan[0, 0] = h
+        seed = np.array([model.seed], np.uint32)  # a u32 argument before: its bits
+        ints[0, 1] = seed.view(np.int32)[0] if ints.dtype == np.int32 else seed[0]
+        births = ints[1:, 1 : 1 + model.emitter_count]
         t = state.time
         for k in range(count):
-            plan[k, 0] = t
+            plan[k + 1, 0] = t
             t += h
         for k in range(count):
             for e in model.emitters:
@@ -110,18 +116,11 @@ class BlockedFrame:
                 total += int(per_step[end])
                 end += 1
             serial = runtime.backend_name() == "cpu" and self.capacity * (end - first) < SERIAL_BELOW
-            self._launch(
-                serial,
-                model,
-                state,
-                self.method,
-                plan[first:end],
-                end - first,
-                h,
-                model.seed,
-                state.step_count + first,
-                state.trail_head + first,
-            )
+            chunk = plan
+            if (first, end) != (0, count):  # a long frame's later launch: the header, then its rows
+                chunk = np.concatenate([plan[:1], plan[1 + first : 1 + end]])
+            chunk.view(ints.dtype)[0, 2:4] = state.step_count + first, state.trail_head + first
+            self._launch(serial, model, state, self.method, chunk)
             first = end
 
     # The particle pass inlines every collider's swept test, as Integrator._final does: Taichi's CFG
@@ -137,12 +136,12 @@ class BlockedFrame:
         state: ti.template(),
         method: ti.template(),
         plan: ti.types.ndarray(ndim=2),
-        steps: ti.i32,
-        h: float,
-        seed: ti.u32,
-        step0: ti.i32,
-        head: ti.i32,
     ):
+        steps = plan.shape[0] - 1
+        h = ti.cast(plan[0, 0], float)
+        seed = ti.cast(self.int_at(plan, 0, 1), ti.u32)
+        step0 = self.int_at(plan, 0, 2)
+        head = self.int_at(plan, 0, 3)
         if ti.static(self.lifetimes):
             # 1. The substep each slot is free from, and per word of 32 slots the bits free at the start
             # and the first substep at which another of its slots comes free; no births yet.
@@ -439,13 +438,18 @@ class BlockedFrame:
     @ti.func
     def time_of(self, plan: ti.template(), k):
         """Substep k's start time [s] in the launch's plan."""
-        return ti.cast(plan[k, 0], float)
+        return ti.cast(plan[1 + k, 0], float)
 
     @ti.func
     def births_of(self, plan: ti.template(), k, e):
-        """Emitter e's births at substep k in the launch's plan (an integer's bits in a float's place)."""
+        """Emitter e's births at substep k in the launch's plan."""
+        return self.int_at(plan, 1 + k, 1 + e)
+
+    @ti.func
+    def int_at(self, plan: ti.template(), row, column):
+        """The integer whose bits the plan holds at (row, column), in a float's place."""
         bits = ti.i32 if ti.static(np_float() == np.float32) else ti.i64
-        return ti.cast(ti.bit_cast(plan[k, 1 + e], bits), ti.i32)
+        return ti.cast(ti.bit_cast(plan[row, column], bits), ti.i32)
 
     # Emitter.scan reads and takes slots through these two, ctx = (substep, emitter, plan, substeps, h,
     # seed, first step number).
