@@ -67,6 +67,7 @@ class Stepper:
         self._guarded_dt = None  # the step the stability guard last checked
         self._frame_mode = None  # how a frame of substeps is launched (frame_mode), chosen on first use
         self._blocked = None  # the blocked frame's scratch (BlockedFrame), made on its first frame
+        self._watch_count = None  # the watch's count a frame just read back (_frame), for its own check
         self.watchdog = Watchdog(model)
         # The rollback point (a State saved at the last good checked step, `_keep_good`): recovering
         # policies redo the step from it, and with policy.keep_last_good a DivergenceError leaves the state
@@ -311,7 +312,13 @@ class Stepper:
         # A solver's frame stops at a step that overflowed or diverged, leaving the rest undone: it is
         # read after every frame, whatever check_every says.
         if (state.step_count // every) > (first // every) or mode == "solver_frame":
-            self.check(state)
+            # The blocked launch wrote the watch's count into its plan: this check reads that instead
+            # of the field (a launch); only this check, right after the frame that wrote it.
+            self._watch_count = self._blocked.watch_count if mode == "blocked" else None
+            try:
+                self.check(state)
+            finally:
+                self._watch_count = None
 
     def check(self, state, *, energy: bool = False) -> None:
         """Read the divergence watch now (a device sync): raises DivergenceError if a step so far
@@ -386,7 +393,9 @@ class Stepper:
         particles, the only thing the watch counts: rigid bodies check themselves, 5 us a step saved)."""
         if not self.model.particle_count:
             return None
-        count = int(state.nonfinite_count[None])
+        count = self._watch_count
+        if count is None:
+            count = int(state.nonfinite_count[None])
         return None if count == 0 else self.watchdog.error(state, count)
 
     def _attempt(self, state, dt: float, method, split: int):

@@ -87,15 +87,17 @@ class BlockedFrame:
         self.ranges.from_numpy(rows)
         wanted = model.particle_capacity >= PACKS_FROM if PACKED is None else PACKED
         self.packed = wanted and packs_apply(model)
+        self.watch_count = None  # the watchdog's count after the last frame (CPU), see run
 
     def run(self, state, h: float, count: int) -> None:
         """`count` substeps of h [s] from the state's time (the caller advances time and step count)."""
         model = self.model
-        # The plan: a header row (h, the seed, the first step number, the first trail column), then one
+        # The plan: a header row (h, the seed, the first step number, the first trail column; the launch
+        # writes the watchdog's count after it, which Stepper.check then reads without a launch), then one
         # row per substep: its start time, accumulated as `count` calls of Stepper.step do, and each
         # emitter's births. Integers travel as the bits of an integer of the float's width (exact at any
         # count): every scalar argument of a launch costs ~3 us of Taichi's Python, an array ~20 us.
-        plan = np.zeros((count + 1, max(1 + model.emitter_count, 4)), np_float())
+        plan = np.zeros((count + 1, max(1 + model.emitter_count, 5)), np_float())
         ints = plan.view(np.int32 if plan.dtype == np.float32 else np.int64)
         plan[0, 0] = h
         seed = np.array([model.seed], np.uint32)  # a u32 argument before: its bits
@@ -122,6 +124,8 @@ class BlockedFrame:
             chunk.view(ints.dtype)[0, 2:4] = state.step_count + first, state.trail_head + first
             self._launch(serial, model, state, self.method, chunk)
             first = end
+        on_cpu = runtime.backend_name() == "cpu"  # where the launch wrote into `chunk` itself
+        self.watch_count = int(chunk.view(ints.dtype)[0, 4]) if on_cpu else None
 
     # The particle pass inlines every collider's swept test, as Integrator._final does: Taichi's CFG
     # passes were most of its compile (the fountain demo's first frame with an empty cache compiled
@@ -221,6 +225,8 @@ class BlockedFrame:
                         lim,
                     )
                 self.end_of(state, i, x, v, birth, death, steps)
+        # 4. The watchdog's count, for Stepper.check (a Python-scope field read is a launch, ~20 us).
+        plan[0, 4] = self.as_float(state.nonfinite_count[None])
 
     @ti.func
     def start_of(self, state: ti.template(), i):
@@ -444,6 +450,12 @@ class BlockedFrame:
     def births_of(self, plan: ti.template(), k, e):
         """Emitter e's births at substep k in the launch's plan."""
         return self.int_at(plan, 1 + k, 1 + e)
+
+    @ti.func
+    def as_float(self, n):
+        """Integer n's bits in a float's place (int_at reads them back)."""
+        bits = ti.i32 if ti.static(np_float() == np.float32) else ti.i64
+        return ti.bit_cast(ti.cast(n, bits), float)
 
     @ti.func
     def int_at(self, plan: ti.template(), row, column):
