@@ -119,7 +119,7 @@ class BlockedFrame:
                 end += 1
             serial = runtime.backend_name() == "cpu" and self.capacity * (end - first) < SERIAL_BELOW
             chunk = plan
-            if (first, end) != (0, count):  # a long frame's later launch: the header, then its rows
+            if (first, end) != (0, count):  # a frame split into launches: the header, then this one's rows
                 chunk = np.concatenate([plan[:1], plan[1 + first : 1 + end]])
             chunk.view(ints.dtype)[0, 2:4] = state.step_count + first, state.trail_head + first
             self._launch(serial, model, state, self.method, chunk)
