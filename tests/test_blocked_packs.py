@@ -1,6 +1,6 @@
 """Packs of a blocked frame (integrators/blocked.py, BlockedFrame.advance_pack): PACK particles through
-the frame as vector lanes, quiet substeps ending at the update and the others running every lane through
-the particle loop's own substep.
+the frame as vector lanes, quiet substeps ending at the update, and in the others the lanes that are not
+quiet going through the particle loop's own substep.
 
 The method is unchanged, so a pack's particles must end bit for bit where one particle per iteration
 puts them; and `path_is_clear`, which lets a substep skip `collide`, must only ever vouch for paths on
