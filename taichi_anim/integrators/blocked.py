@@ -63,7 +63,7 @@ class BlockedFrame:
         self.method = method
         self.lifetimes = model.emitter_count > 0
         self.capacity = model.particle_capacity
-        # (start, word_lo, word_hi, mask_lo, mask_hi, end) per emitter: arguments, not constants, so
+        # (start, word_lo, word_hi, mask_lo, mask_hi, end) per emitter: a field's values, not constants, so
         # that another pool size compiles nothing new.
         rows = np.zeros((1, 6), np.int32)
         if self.lifetimes:
