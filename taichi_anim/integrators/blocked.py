@@ -111,20 +111,21 @@ class BlockedFrame:
             for e in model.emitters:
                 births[k, e.index] = e.plan(state, h)
         per_step = births.sum(axis=1)
+        on_cpu = runtime.backend_name() == "cpu"
         first = 0
         while first < count:
             end, total = first + 1, int(per_step[first])
             while end < count and end - first < MAX_STEPS and total + per_step[end] <= self.capacity:
                 total += int(per_step[end])
                 end += 1
-            serial = runtime.backend_name() == "cpu" and self.capacity * (end - first) < SERIAL_BELOW
+            serial = on_cpu and self.capacity * (end - first) < SERIAL_BELOW
             chunk = plan
             if (first, end) != (0, count):  # a frame split into launches: the header, then this one's rows
                 chunk = np.concatenate([plan[:1], plan[1 + first : 1 + end]])
             chunk.view(ints.dtype)[0, 2:4] = state.step_count + first, state.trail_head + first
             self._launch(serial, model, state, self.method, chunk)
             first = end
-        on_cpu = runtime.backend_name() == "cpu"  # where the launch wrote into `chunk` itself
+        # On the CPU the launch wrote into `chunk` itself (a GPU's copy is not read back here).
         self.watch_count = int(chunk.view(ints.dtype)[0, 4]) if on_cpu else None
 
     # The particle pass inlines every collider's swept test, as Integrator._final does: Taichi's CFG
