@@ -16,6 +16,7 @@ from .errors import DivergenceError, ParameterError
 from .health import Health
 from .integrators.blocked import BlockedFrame
 from .integrators.implicit_euler import IntegratorImplicitEuler
+from .integrators.parallel_frame import ParallelFrame, parallel_frame_applies
 from .solvers import check_solver, make_solvers
 from .state import State
 from .watchdog import Watchdog
@@ -26,6 +27,15 @@ MAX_STABLE_SPLIT = 4096  # the most substeps the retry policy takes from the sta
 # ~80 us to join a loop here); above it, one parallel launch per substep (benchmarks/results/frame_fusion.md:
 # serial frame faster up to 80^2 cloth, 82k work; launches from 96^2, 118k).
 FRAME_SERIAL_BELOW = 100_000
+# From this much work, a frame runs in one parallel launch with barriers between its passes where that
+# applies (integrators/parallel_frame.py). Warp's cloth benchmark on the 2-core Xeon, ms a frame, serial
+# frame against parallel frame, two runs each: 32^2 (work 12,600) 0.77, 0.72 against 0.96, 0.93; 40^2
+# (20,000) 1.19, 1.22 against 1.37, 0.98; 48^2 (29,000) 1.80, 1.71 against 1.18, 1.97; 56^2 (39,700)
+# 2.15, 2.17 against 1.47, 1.61; 64^2 3.04, 3.02 against 1.88, 1.82 (launches: 3.30).
+FRAME_PARALLEL_FROM = 25_000
+# None: the parallel frame where it applies from FRAME_PARALLEL_FROM; True: wherever it applies; False:
+# never (tests compare the modes).
+PARALLEL_FRAME = None
 
 
 class Stepper:
@@ -67,6 +77,7 @@ class Stepper:
         self._guarded_dt = None  # the step the stability guard last checked
         self._frame_mode = None  # how a frame of substeps is launched (frame_mode), chosen on first use
         self._blocked = None  # the blocked frame's scratch (BlockedFrame), made on its first frame
+        self._parallel = None  # the parallel frame's counters (ParallelFrame), made on its first frame
         self._watch_count = None  # the watch's count a frame just read back (_frame), for its own check
         self.watchdog = Watchdog(model)
         # The rollback point (a State saved at the last good checked step, `_keep_good`): recovering
@@ -217,6 +228,8 @@ class Stepper:
         "blocked": one kernel takes each particle through every substep (particles that do not act on
         each other: integrators/blocked.py);
         "serial_frame": one kernel runs every substep, serially (CPU, work below FRAME_SERIAL_BELOW);
+        "parallel_frame": one kernel runs every substep on every CPU thread, which wait for each other
+        between passes (integrators/parallel_frame.py; CPU, work from FRAME_PARALLEL_FROM);
         "launches": the method's kernel once per substep with nothing else in between; "steps": the
         full step per substep (what the scene needs between substeps: contacts, moving meshes,
         rollback, a multi-stage method; emission and trails where the particles are coupled or on a
@@ -262,6 +275,9 @@ class Stepper:
                 "reason": "particles independent: each one through the frame in registers",
             }
         work = model.work
+        wanted = work >= FRAME_PARALLEL_FROM if PARALLEL_FRAME is None else PARALLEL_FRAME
+        if wanted and parallel_frame_applies(model, method):
+            return {"mode": "parallel_frame", "reason": f"work {work}: one parallel launch on the CPU"}
         if on_cpu and work < FRAME_SERIAL_BELOW:
             return {"mode": "serial_frame", "reason": f"work {work} < {FRAME_SERIAL_BELOW} on the CPU"}
         where = "on the GPU" if not on_cpu else f">= {FRAME_SERIAL_BELOW} on the CPU"
@@ -292,6 +308,10 @@ class Stepper:
             else:
                 if mode == "solver_frame":
                     self.solvers[0].frame(model, state, h, n)
+                elif mode == "parallel_frame":
+                    if self._parallel is None:
+                        self._parallel = ParallelFrame(model, method)
+                    self._parallel.run(state, h, n, first + 1)
                 elif mode == "blocked":
                     if self._blocked is None:
                         self._blocked = BlockedFrame(model, method)

@@ -56,8 +56,11 @@ def _run(mode: str | None, method: str, h: float, frames: int, substeps: int, **
     return state, stepper
 
 
-@pytest.mark.parametrize("method", ["symplectic_euler", "explicit_euler"])
-@pytest.mark.parametrize("mode", ["serial_frame", "launches"])
+@pytest.mark.parametrize(
+    "mode, method",
+    [(m, e) for m in ("serial_frame", "launches") for e in ("symplectic_euler", "explicit_euler")]
+    + [("parallel_frame", "symplectic_euler")],  # the default pass and update only (parallel_frame.py)
+)
 def test_fused_frames_equal_step_by_step(mode, method):
     """Springs, drag, a plane and a sphere with friction: 3 frames of 16 substeps equal 48 single steps
     to round-off, with the same time, step count and evaluation count.

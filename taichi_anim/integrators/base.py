@@ -155,19 +155,26 @@ class Integrator:
         self.final_pass(model, xi, vi, t, h)  # reads the whole start state before anything is overwritten
         ti.loop_config(serialize=model.serial)
         for i in range(model.live_particles()):
-            if model.alive(state, i, ta):
-                x0 = xi[i]
-                v0 = vi[i]
-                x1, v1 = self.update(model, i, x0, v0, t, h)
-                if ti.static(finish):
-                    finish_particle(model, state, self.collision_mode, i, x0, v0, x1, v1, t, h, step)
-                    if ti.static(state.has_lifetimes):
-                        model.release_if_dead(state, i, ta + h)  # dies within this step
-                else:
-                    xo[i] = x1
-                    vo[i] = v1
-            elif ti.static(finish and state.has_lifetimes):
-                model.release(state, i)
+            self.final_particle(model, state, xi, vi, xo, vo, ta, t, h, step, finish, i)
+
+    @ti.func
+    def final_particle(self, model: ti.template(), state: ti.template(), xi: ti.template(),
+                       vi: ti.template(), xo: ti.template(), vo: ti.template(), ta, t, h, step,
+                       finish: ti.template(), i):  # fmt: skip
+        """Particle i's part of `_final`: its update from (xi, vi), finished or written to (xo, vo)."""
+        if model.alive(state, i, ta):
+            x0 = xi[i]
+            v0 = vi[i]
+            x1, v1 = self.update(model, i, x0, v0, t, h)
+            if ti.static(finish):
+                finish_particle(model, state, self.collision_mode, i, x0, v0, x1, v1, t, h, step)
+                if ti.static(state.has_lifetimes):
+                    model.release_if_dead(state, i, ta + h)  # dies within this step
+            else:
+                xo[i] = x1
+                vo[i] = v1
+        elif ti.static(finish and state.has_lifetimes):
+            model.release(state, i)
 
     @ti.kernel
     def _frame(

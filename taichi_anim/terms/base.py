@@ -260,9 +260,27 @@ class ElementTerm(TermBounds):
         cache.f."""
         ti.loop_config(serialize=serial)
         for e in range(self.live_elements()):
-            F = self.element_force(e, self.stack(e, xf), self.stack(e, vf), t)
-            for a in ti.static(range(self.arity)):
-                cache.f[e, a] = ti.Vector([F[3 * a], F[3 * a + 1], F[3 * a + 2]])
+            self._evaluate_one(cache, e, xf, vf, t)
+
+    # Evaluation in shares (integrators/parallel_frame.py): evaluate_range over each share.
+    splits_evaluation = True
+
+    @ti.func
+    def element_count(self):
+        """Elements `evaluate` runs over (live_elements)."""
+        return self.live_elements()
+
+    @ti.func
+    def evaluate_range(self, cache: ti.template(), xf: ti.template(), vf: ti.template(), t, lo, hi):
+        """`evaluate` over the elements [lo, hi) only, as an inner loop (the caller shares out the range)."""
+        for e in range(lo, hi):
+            self._evaluate_one(cache, e, xf, vf, t)
+
+    @ti.func
+    def _evaluate_one(self, cache: ti.template(), e, xf: ti.template(), vf: ti.template(), t):
+        F = self.element_force(e, self.stack(e, xf), self.stack(e, vf), t)
+        for a in ti.static(range(self.arity)):
+            cache.f[e, a] = ti.Vector([F[3 * a], F[3 * a + 1], F[3 * a + 2]])
 
     @ti.func
     def gather(self, cache: ti.template(), i):

@@ -201,11 +201,33 @@ class Springs(TermBounds):
         else:
             ti.loop_config(serialize=serial)
             for s in range(self.live_springs()):
-                ij = self.spring_pair[s]
-                p = self.spring_param[s]
-                f, _, _ = spring_force(xf[ij[0]] - xf[ij[1]], vf[ij[0]] - vf[ij[1]], p[0], p[1], p[2])
-                cache.f[s] = f
+                self._evaluate_one(cache, s, xf, vf)
             cache.mode[None] = 0
+
+    # The spring pass in shares (integrators/parallel_frame.py): evaluate_range over each share, the
+    # per-spring form of the parallel pass.
+    splits_evaluation = True
+
+    @ti.func
+    def element_count(self):
+        """Springs the pass runs over (live_springs)."""
+        return self.live_springs()
+
+    @ti.func
+    def evaluate_range(self, cache: ti.template(), xf: ti.template(), vf: ti.template(), t, lo, hi):
+        """The parallel pass's springs [lo, hi) only (an inner loop: the caller shares out the range):
+        the same force per spring into cache.f, for `gather` to walk."""
+        for s in range(lo, hi):
+            self._evaluate_one(cache, s, xf, vf)
+        if lo == 0:
+            cache.mode[None] = 0
+
+    @ti.func
+    def _evaluate_one(self, cache: ti.template(), s, xf: ti.template(), vf: ti.template()):
+        ij = self.spring_pair[s]
+        p = self.spring_param[s]
+        f, _, _ = spring_force(xf[ij[0]] - xf[ij[1]], vf[ij[0]] - vf[ij[1]], p[0], p[1], p[2])
+        cache.f[s] = f
 
     @ti.func
     def gather(self, cache: ti.template(), i):

@@ -1,0 +1,103 @@
+"""A frame of substeps of coupled particles (springs, cloth) in one parallel launch on the CPU, with the
+threads kept running between the substeps' passes and waiting for each other at barriers.
+
+Why: a substep of a cloth needs two passes, the elements' forces and then the particles' update (each
+particle gathers the forces of its elements), and each pass was a parallel loop. On the 2-core Xeon a
+parallel loop costs about 70-90 us to start (Taichi's thread pool wakes its second thread each time),
+while a 64 x 64 cloth's substep is about 180 us of work: the wake-ups bounded the frame. Here one launch
+starts the threads once per frame, and the passes are separated by a barrier of two atomics
+(3.7 against 89 us a pass on a 2,048-float stencil trial).
+
+How: the launch's loop has one task per thread (Taichi 1.7's CPU loops hand out blocks of at least
+TASK_ITEMS iterations, so a loop of threads x TASK_ITEMS iterations is that many tasks, and only the
+first iteration of each block works). Each pass of the frame (substep k's elements: pass 2k; its
+particles: 2k + 1) is cut into `chunks` ranges; a task claims the next chunk from a shared counter,
+waits until every chunk of the passes before it is done (a second counter), runs it and counts it done.
+Claims follow the pass order, so nothing waits for a chunk nobody runs: one thread alone (or a second
+one that starts late) runs every chunk itself. No result depends on who ran which chunk, so a frame
+gives the same bits on any number of threads; each chunk runs the same functions per element and per
+particle as the one-launch-per-substep path (`final_particle`, `evaluate_range`), whose frames it
+equals to round-off (tests/test_parallel_frame.py: kernels compiled apart may contract differently).
+
+The counters' atomics are sequentially consistent read-modify-writes, so a chunk's writes are visible to
+every thread that has seen it counted done, and the wait's read cannot be hoisted out of its loop."""
+
+import taichi as ti
+
+from .. import runtime
+from ..runtime import compile_with, data_oriented
+
+# Iterations per task of a Taichi 1.7 CPU loop whose size is known when compiling (its adaptive block:
+# at least 512): a loop of n x TASK_ITEMS iterations is n tasks, one per thread of the pool.
+TASK_ITEMS = 512
+# Chunks per pass and thread: more than one, so a thread that is late to start or slowed by the other
+# process on its core leaves work that the other thread takes. Warp's cloth at 32^2 / 64^2 / 128^2 on the
+# 2-core Xeon, ms a frame, two runs: 1 chunk 0.92, 0.64 / 3.31, 1.87 / 7.08, 7.25; 2: 0.88, 0.93 / 2.24,
+# 1.83 / 6.73, 6.69; 4: 0.75, 0.61 / 1.77, 2.14 / 6.51, 6.65; 8: 0.88, 0.72 / 2.74, 2.57 / 6.89, 6.75
+# (this VM's second core comes and goes: the spread within a setting is as large as between them).
+CHUNKS_PER_THREAD = 4
+
+
+def parallel_frame_applies(model, method) -> bool:
+    """Whether frames of `method` on `model` can run here: on the CPU with at least two threads, a
+    method whose substep is the default force pass and update (Integrator.final_pass), and element terms
+    that evaluate a range of their elements (`splits_evaluation`)."""
+    from .base import Integrator  # the default pass, to compare with (base imports this module's users)
+
+    return (
+        runtime.backend_name() == "cpu"
+        and runtime.cpu_threads() >= 2
+        and type(method).final_pass is Integrator.final_pass
+        and all(getattr(t, "splits_evaluation", False) for t in model.element_terms)
+    )
+
+
+@data_oriented
+class ParallelFrame:
+    """Runs frames of a fusable `method` on `model` (Stepper.frame_mode "parallel_frame")."""
+
+    def __init__(self, model, method):
+        self.model = model
+        self.method = method
+        self.threads = runtime.cpu_threads()
+        self.chunks = CHUNKS_PER_THREAD * self.threads
+        self.claimed = model.new_field(self, "parallel_frame_claimed", ti.i32, ())
+        self.done = model.new_field(self, "parallel_frame_done", ti.i32, ())
+
+    def run(self, state, h: float, count: int, step0: int) -> None:
+        """`count` substeps of h [s] from the state's time, numbered from step0 (the caller advances time
+        and step count)."""
+        self._run(self.model, state, self.method, float(state.time), h, count, step0)
+
+    # Without Taichi's CFG passes, as _final (integrators/base.py), whose per-particle code this inlines.
+    @compile_with(cfg_optimization=False)
+    @ti.kernel
+    def _run(self, model: ti.template(), state: ti.template(), method: ti.template(), t0: float, h: float,
+             count: ti.i32, step0: ti.i32):  # fmt: skip
+        x, v = ti.static(state.particle_x, state.particle_v)
+        self.claimed[None] = 0
+        self.done[None] = 0
+        chunks = self.chunks
+        for task in range(self.threads * TASK_ITEMS):
+            if task % TASK_ITEMS == 0:
+                last = 2 * count * chunks
+                g = ti.atomic_add(self.claimed[None], 1)
+                while g < last:
+                    p, c = g // chunks, g % chunks
+                    # atomic_max with -1 reads the counter (a plain read would be hoisted out of the loop)
+                    while ti.atomic_max(self.done[None], -1) < p * chunks:
+                        pass
+                    k = p // 2
+                    t = t0 + k * h
+                    if p % 2 == 0:
+                        for e in ti.static(range(len(model.element_terms))):
+                            term = model.element_terms[e]
+                            n = term.element_count()
+                            lo, hi = c * n // chunks, (c + 1) * n // chunks
+                            term.evaluate_range(method.caches[e], x, v, t, lo, hi)
+                    else:
+                        n = model.live_particles()
+                        for i in range(c * n // chunks, (c + 1) * n // chunks):
+                            method.final_particle(model, state, x, v, x, v, t, t, h, step0 + k, True, i)
+                    ti.atomic_add(self.done[None], 1)
+                    g = ti.atomic_add(self.claimed[None], 1)
