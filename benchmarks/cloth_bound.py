@@ -9,8 +9,8 @@ ends, one pass over the vertices (v += h f / m + h g, x += h v). No watchdog, no
 what Taichi's CPU code makes of the step on one core, the floor for any serial path of the engine.
 "minimal parallel": two parallel loops a substep, the springs' forces into an array, then each vertex
 summing its springs' (a compressed adjacency, as the engine's parallel path reads it) and updating.
-Each frame of ours and Warp's copies the positions to NumPy, as `cloth_warp.py` does; the minimal
-kernels copy nothing.
+Each frame of ours and Warp's reads the positions as NumPy, as `cloth_warp.py` does (ours a float64 copy,
+`state.positions()`; warp_cpu a view of its array, no copy); the minimal kernels read nothing.
 
     .venv/bin/python benchmarks/cloth_bound.py [--quick]
 """
@@ -176,7 +176,8 @@ def main(argv=None) -> int:
             "step": f"{substeps} symplectic Euler substeps per 1/{round(1 / dt)} s frame, f32, cpu",
             "minimal serial": "one serial kernel a frame: zero forces, springs into their ends, update",
             "minimal parallel": "two parallel loops a substep: per-spring forces, each vertex's sum, update",
-            "copies": "ours and warp_cpu copy positions to NumPy every frame; the minimal kernels do not",
+            "copies": "every frame ours copies positions to NumPy (state.positions()) and warp_cpu returns a "
+            "view of its array; the minimal kernels read nothing",
             "frames": f"{frames} timed after 2 warm-up frames (cut after the time budget)",
             "peers": ", ".join(f"{k} {v}" for k, v in versions("warp-lang").items()),
         },

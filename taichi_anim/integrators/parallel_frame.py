@@ -22,10 +22,13 @@ equals to round-off (tests/test_parallel_frame.py: kernels compiled apart may co
 The counters' atomics are sequentially consistent read-modify-writes, so a chunk's writes are visible to
 every thread that has seen it counted done, and the wait's read cannot be hoisted out of its loop."""
 
+import os
+
 import taichi as ti
 
 from .. import runtime
 from ..runtime import compile_with, data_oriented
+from .base import Integrator
 
 # Iterations per task of a Taichi 1.7 CPU loop whose size is known when compiling (its adaptive block:
 # at least 512): a loop of n x TASK_ITEMS iterations is n tasks, one per thread of the pool.
@@ -39,17 +42,26 @@ CHUNKS_PER_THREAD = 4
 
 
 def parallel_frame_applies(model, method) -> bool:
-    """Whether frames of `method` on `model` can run here: on the CPU with at least two threads, a
-    method whose substep is the default force pass and update (Integrator.final_pass), and element terms
-    that evaluate a range of their elements (`splits_evaluation`)."""
-    from .base import Integrator  # the default pass, to compare with (base imports this module's users)
-
+    """Whether frames of `method` on `model` can run here: on the CPU with at least two threads and two
+    cores to run them, a method whose substep is the default force pass and update
+    (Integrator.final_pass), and element terms that evaluate a range of their elements
+    (`splits_evaluation`)."""
     return (
         runtime.backend_name() == "cpu"
         and runtime.cpu_threads() >= 2
+        and _usable_cores() >= 2
         and type(method).final_pass is Integrator.final_pass
         and all(getattr(t, "splits_evaluation", False) for t in model.element_terms)
     )
+
+
+def _usable_cores() -> int:
+    """CPUs this process may run on: two threads sharing one core would wait out each other's time
+    slices at every barrier."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
 
 
 @data_oriented
