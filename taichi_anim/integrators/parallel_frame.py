@@ -8,31 +8,22 @@ while a 64 x 64 cloth's substep is about 180 us of work: the wake-ups bounded th
 starts the threads once per frame, and the passes are separated by a barrier of two atomics
 (3.7 against 89 us a pass on a 2,048-float stencil trial).
 
-How: the launch's loop has one task per thread (Taichi 1.7's CPU loops hand out blocks of at least
-TASK_ITEMS iterations, so a loop of threads x TASK_ITEMS iterations is that many tasks, and only the
-first iteration of each block works). Each pass of the frame (substep k's elements: pass 2k; its
-particles: 2k + 1) is cut into `chunks` ranges; a task claims the next chunk from a shared counter,
-waits until every chunk of the passes before it is done (a second counter), runs it and counts it done.
-Claims follow the pass order, so nothing waits for a chunk nobody runs: one thread alone (or a second
-one that starts late) runs every chunk itself. No result depends on who ran which chunk, so a frame
-gives the same bits on any number of threads; each chunk runs the same functions per element and per
-particle as the one-launch-per-substep path (`final_particle`, `evaluate_range`), whose frames it
-equals to round-off (tests/test_parallel_frame.py: kernels compiled apart may contract differently).
-
-The counters' atomics are sequentially consistent read-modify-writes, so a chunk's writes are visible to
-every thread that has seen it counted done, and the wait's read cannot be hoisted out of its loop."""
-
-import os
+How (workers.py): the launch's loop has one task per thread. Each pass of the frame (substep k's
+elements: pass 2k; its particles: 2k + 1) is cut into `chunks` ranges; a worker claims the next chunk
+from one counter over the whole frame, waits until every chunk of the passes before it is done (a second
+counter), runs it and counts it done. Claims follow the pass order, so nothing waits for a chunk nobody
+runs: one thread alone (or a second one that starts late) runs every chunk itself. No result depends on
+who ran which chunk, so a frame gives the same bits on any number of threads; each chunk runs the same
+functions per element and per particle as the one-launch-per-substep path (`final_particle`,
+`evaluate_range`), whose frames it equals to round-off (tests/test_parallel_frame.py: kernels compiled
+apart may contract differently)."""
 
 import taichi as ti
 
-from .. import runtime
+from .. import runtime, workers
 from ..runtime import compile_with, data_oriented
 from .base import Integrator
 
-# Iterations per task of a Taichi 1.7 CPU loop whose size is known when compiling (its adaptive block:
-# at least 512): a loop of n x TASK_ITEMS iterations is n tasks, one per thread of the pool.
-TASK_ITEMS = 512
 # Chunks per pass and thread: more than one, so a thread that is late to start or slowed by the other
 # process on its core leaves work that the other thread takes. Warp's cloth at 32^2 / 64^2 / 128^2 on the
 # 2-core Xeon, ms a frame, two runs: 1 chunk 0.92, 0.64 / 3.31, 1.87 / 7.08, 7.25; 2: 0.88, 0.93 / 2.24,
@@ -47,21 +38,10 @@ def parallel_frame_applies(model, method) -> bool:
     (Integrator.final_pass), and element terms that evaluate a range of their elements
     (`splits_evaluation`)."""
     return (
-        runtime.backend_name() == "cpu"
-        and runtime.cpu_threads() >= 2
-        and _usable_cores() >= 2
+        workers.available()
         and type(method).final_pass is Integrator.final_pass
         and all(getattr(t, "splits_evaluation", False) for t in model.element_terms)
     )
-
-
-def _usable_cores() -> int:
-    """CPUs this process may run on: two threads sharing one core would wait out each other's time
-    slices at every barrier."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
 
 
 @data_oriented
@@ -73,8 +53,8 @@ class ParallelFrame:
         self.method = method
         self.threads = runtime.cpu_threads()
         self.chunks = CHUNKS_PER_THREAD * self.threads
-        self.claimed = model.new_field(self, "parallel_frame_claimed", ti.i32, ())
-        self.done = model.new_field(self, "parallel_frame_done", ti.i32, ())
+        self.claimed = model.new_field(self, "parallel_frame_claimed", ti.i32, 1)
+        self.done = model.new_field(self, "parallel_frame_done", ti.i32, 1)
 
     def run(self, state, h: float, count: int, step0: int) -> None:
         """`count` substeps of h [s] from the state's time, numbered from step0 (the caller advances time
@@ -87,18 +67,16 @@ class ParallelFrame:
     def _run(self, model: ti.template(), state: ti.template(), method: ti.template(), t0: float, h: float,
              count: ti.i32, step0: ti.i32):  # fmt: skip
         x, v = ti.static(state.particle_x, state.particle_v)
-        self.claimed[None] = 0
-        self.done[None] = 0
+        self.claimed[0] = 0
+        self.done[0] = 0
         chunks = self.chunks
-        for task in range(self.threads * TASK_ITEMS):
-            if task % TASK_ITEMS == 0:
+        for task in range(self.threads * workers.TASK_ITEMS):
+            if workers.is_worker(task):
                 last = 2 * count * chunks
-                g = ti.atomic_add(self.claimed[None], 1)
+                g = workers.claim(self.claimed, 0)
                 while g < last:
                     p, c = g // chunks, g % chunks
-                    # atomic_max with -1 reads the counter (a plain read would be hoisted out of the loop)
-                    while ti.atomic_max(self.done[None], -1) < p * chunks:
-                        pass
+                    workers.wait_done(self.done, 0, p * chunks)
                     k = p // 2
                     t = t0 + k * h
                     if p % 2 == 0:
@@ -111,5 +89,5 @@ class ParallelFrame:
                         n = model.live_particles()
                         for i in range(c * n // chunks, (c + 1) * n // chunks):
                             method.final_particle(model, state, x, v, x, v, t, t, h, step0 + k, True, i)
-                    ti.atomic_add(self.done[None], 1)
-                    g = ti.atomic_add(self.claimed[None], 1)
+                    workers.finish(self.done, 0)
+                    g = workers.claim(self.claimed, 0)

@@ -49,6 +49,7 @@ from .pressure import ERROR_SCALE, PressureSolves
 from .report import FluidReport
 from .serial_substep import SerialSubstep
 from .sph_kernel import cubic_w, cubic_w_grad, lattice_sum
+from .worker_solve import WorkerSolve
 
 FLUID_NEIGHBORS = 64  # listed fluid neighbours per particle (26 at rest; a compressed splash ~45)
 BODY_NEIGHBORS = 64  # listed samples of rigid bodies per particle (~13 at a face, ~40 at a corner)
@@ -59,7 +60,7 @@ FLUID_SERIAL_BELOW = 3000
 
 
 @data_oriented
-class FluidDynamics(PressureSolves, SerialSubstep, FluidReport):
+class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, FluidReport):
     """The liquid's pressure solver (module docstring); built by the Stepper from `model.fluid`."""
 
     name = "fluid"
@@ -150,6 +151,7 @@ class FluidDynamics(PressureSolves, SerialSubstep, FluidReport):
             self.body_n = f("fluid_body_n", ti.i32)
             self.body_nbr = f("fluid_body_nbr", ti.i32, shape=(n, BODY_NEIGHBORS))
             self.body_grad = f("fluid_body_grad", dims=(3,), shape=(n, BODY_NEIGHBORS))
+        self._make_worker_solve(make)
         self.err_sum = f("fluid_err_sum", ti.i64, shape=())
         self.err_max = f("fluid_err_max", shape=())
         self.overflow = f("fluid_overflow", ti.i32, shape=())

@@ -80,11 +80,16 @@ class PressureSolves:
         least = min(self.min_iterations, 1) if divergence else self.min_iterations
         # Each launch returns the errors' fixed-point sum: reading the field after it would be one more
         # launch per iteration (a small liquid's frame made about 60 such reads).
-        mean = self._start(state, self.model, h, int(divergence)) / ERROR_SCALE / n
-        it = 0
-        while it < self.max_iterations and (mean > tol or it < least):
-            mean = self._iterate(h, int(divergence)) / ERROR_SCALE / n
-            it += 1
+        if self._uses_workers():  # the whole solve in one launch (worker_solve.py)
+            above = first_sum_above(tol, n)
+            out = self._solve_by_workers(state, h, int(divergence), above, least, self.max_iterations)
+            it, mean = int(out[0]), int(out[1]) / ERROR_SCALE / n
+        else:
+            mean = self._start(state, self.model, h, int(divergence)) / ERROR_SCALE / n
+            it = 0
+            while it < self.max_iterations and (mean > tol or it < least):
+                mean = self._iterate(h, int(divergence)) / ERROR_SCALE / n
+                it += 1
         if self.coupled:
             # The bodies take their impulses once per solve. Giving them back after every iteration
             # (the samples then moving within the solve) changed neither a floating plank's heave
@@ -109,19 +114,25 @@ class PressureSolves:
         """Each slot's stiffness kappa from its predicted error, and the errors' fixed-point sum and max."""
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
-            d = self._flux(k)
-            s, e = ti.cast(0.0, float), ti.cast(0.0, float)
-            if divergence:
-                if self.nn[k] + self.bn[k] >= DIVERGENCE_MIN_NEIGHBORS:
-                    s = ti.max(d, 0.0)
-                self.kappa[k] = s * self.alpha[k] / h
-                e = s * h / self.rest_density
-            else:
-                s = ti.max(self.rho[k] + h * d - self.rest_density, 0.0)
-                self.kappa[k] = s * self.alpha[k] / (h * h)
-                e = s / self.rest_density
+            e = self._predict_one(k, h, divergence)
             ti.atomic_add(self.err_sum[None], ti.cast(e * ERROR_SCALE + 0.5, ti.i64))
             ti.atomic_max(self.err_max[None], e)
+
+    @ti.func
+    def _predict_one(self, k, h, divergence):
+        """Slot k's stiffness kappa from its predicted error; returns the error."""
+        d = self._flux(k)
+        s, e = ti.cast(0.0, float), ti.cast(0.0, float)
+        if divergence:
+            if self.nn[k] + self.bn[k] >= DIVERGENCE_MIN_NEIGHBORS:
+                s = ti.max(d, 0.0)
+            self.kappa[k] = s * self.alpha[k] / h
+            e = s * h / self.rest_density
+        else:
+            s = ti.max(self.rho[k] + h * d - self.rest_density, 0.0)
+            self.kappa[k] = s * self.alpha[k] / (h * h)
+            e = s / self.rest_density
+        return e
 
     @ti.func
     def _correct(self, h, apply):
@@ -130,12 +141,17 @@ class PressureSolves:
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             if apply:
-                ki = self.kappa[k]
-                dv = ki * self.wall_grad[k]
-                for m in range(self.nn[k]):
-                    dv += (ki + self.kappa[self.nbr[k, m]]) * self.grad[k, m]
-                self.sv[k] -= h * dv
-                self.kacc[k] += ki
+                self._correct_one(k, h)
+
+    @ti.func
+    def _correct_one(self, k, h):
+        """Slot k's velocity corrected by the current stiffness, which its sum takes."""
+        ki = self.kappa[k]
+        dv = ki * self.wall_grad[k]
+        for m in range(self.nn[k]):
+            dv += (ki + self.kappa[self.nbr[k, m]]) * self.grad[k, m]
+        self.sv[k] -= h * dv
+        self.kacc[k] += ki
 
     @ti.kernel
     def _start(self, state: ti.template(), model: ti.template(), h: float, divergence: ti.i32) -> ti.i64:
@@ -182,18 +198,23 @@ class PressureSolves:
         """Each slot's kappa from a share of the last step's stiffness (kacc, the sum, cleared)."""
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
-            j = self.grid.sorted_id[k]
-            self.kacc[k] = 0.0
-            if divergence:
-                self.kappa[k] = WARM_DIVERGENCE * state.fluid_kappa_v[j] / h
-            else:
-                # Only where the particle is headed into compression (as SPlisHSPlasH). Applied to every
-                # particle, one start of a settled column read its pressure slope 4.5 % steep against
-                # 1.5 %, but starts moved by 1e-10 m spread this way's from +1.5 to +7.3 %
-                # (tests/test_fluid.py, SLOPE_TOLERANCE): the choice follows SPlisHSPlasH, not that pair.
-                self.kappa[k] = 0.0
-                if self.rho[k] + h * self._flux(k) > self.rest_density:
-                    self.kappa[k] = WARM_DENSITY * state.fluid_kappa[j] / (h * h)
+            self._warm_one(state, k, h, divergence)
+
+    @ti.func
+    def _warm_one(self, state: ti.template(), k, h, divergence):
+        """Slot k's kappa from a share of the last step's stiffness; its sum cleared."""
+        j = self.grid.sorted_id[k]
+        self.kacc[k] = 0.0
+        if divergence:
+            self.kappa[k] = WARM_DIVERGENCE * state.fluid_kappa_v[j] / h
+        else:
+            # Only where the particle is headed into compression (as SPlisHSPlasH). Applied to every
+            # particle, one start of a settled column read its pressure slope 4.5 % steep against
+            # 1.5 %, but starts moved by 1e-10 m spread this way's from +1.5 to +7.3 %
+            # (tests/test_fluid.py, SLOPE_TOLERANCE): the choice follows SPlisHSPlasH, not that pair.
+            self.kappa[k] = 0.0
+            if self.rho[k] + h * self._flux(k) > self.rest_density:
+                self.kappa[k] = WARM_DENSITY * state.fluid_kappa[j] / (h * h)
 
     @ti.func
     def _next_prediction(self, h, divergence):
