@@ -85,7 +85,7 @@ class WorkerSolve:
                     apply = True
         ti.loop_config(serialize=True)
         for _ in range(1):
-            last = self.solve_out[2]
+            last = ti.cast(self.solve_out[2], ti.i32)
             self.err_sum[None] = self.pass_sum[last]
             self.err_max[None] = self.pass_max[last]
         return ti.Vector([self.solve_out[0], self.solve_out[1]], dt=ti.i64)
