@@ -38,9 +38,15 @@ def available() -> bool:
     return runtime.backend_name() == "cpu" and runtime.cpu_threads() >= 2 and usable_cores() >= 2
 
 
+def count() -> int:
+    """Workers a launch runs: one per thread, but no more than the cores (a worker spinning at a barrier
+    on a core shared with another would wait out its time slice)."""
+    return max(1, min(runtime.cpu_threads(), usable_cores()))
+
+
 def loop_size() -> int:
-    """Iterations of the launch's top-level loop: one task per thread (is_worker picks their first)."""
-    return runtime.cpu_threads() * TASK_ITEMS
+    """Iterations of the launch's top-level loop: one task per worker (is_worker picks their first)."""
+    return count() * TASK_ITEMS
 
 
 @ti.func

@@ -20,7 +20,7 @@ apart may contract differently)."""
 
 import taichi as ti
 
-from .. import runtime, workers
+from .. import workers
 from ..runtime import compile_with, data_oriented
 from .base import Integrator
 
@@ -51,7 +51,7 @@ class ParallelFrame:
     def __init__(self, model, method):
         self.model = model
         self.method = method
-        self.threads = runtime.cpu_threads()
+        self.threads = workers.count()
         self.chunks = CHUNKS_PER_THREAD * self.threads
         self.claimed = model.new_field(self, "parallel_frame_claimed", ti.i32, 1)
         self.done = model.new_field(self, "parallel_frame_done", ti.i32, 1)
