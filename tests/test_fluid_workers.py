@@ -1,16 +1,17 @@
 """A large liquid's pressure solves in one launch on the CPU's threads (bodies/fluid/worker_solve.py): the
 same iterations every step as a launch per iteration and the same positions to round-off (the passes
 are the same per-slot functions, compiled into another kernel), and the same bits on one thread as on
-two (a thread alone runs every chunk)."""
+two (a thread alone runs every chunk); for DFSPH and for position-based fluids (pbf.py)."""
 
 import numpy as np
+import pytest
 
 import taichi_anim as ta
 import taichi_anim.bodies.fluid.worker_solve as worker_solve
 from taichi_anim.bodies.fluid.dfsph import FLUID_SERIAL_BELOW
 
 
-def _collapse(worker: bool, threads: int, frames: int = 3):
+def _collapse(worker: bool, threads: int, method: str, frames: int = 3):
     """A 16^3 block (4,096 particles: its loops run in parallel) collapsing in a box twice its width:
     per-step (substeps, divergence iterations, density iterations), final positions, whether the
     workers solved."""
@@ -20,7 +21,7 @@ def _collapse(worker: bool, threads: int, frames: int = 3):
         b = ta.Builder()
         b.add_force_gravity()
         b.add_collider_box((0.0, 0.0, 0.0), (0.64, 0.64, 0.32), restitution=0.0)
-        b.add_fluid(spacing=0.02)
+        b.add_fluid(spacing=0.02, method=method)
         b.add_fluid_block((0.0, 0.0, 0.0), (0.32, 0.32, 0.32))
         model = b.finalize()
         assert model.fluid_count >= FLUID_SERIAL_BELOW
@@ -37,12 +38,14 @@ def _collapse(worker: bool, threads: int, frames: int = 3):
         worker_solve.WORKER_SOLVE = None
 
 
-def test_worker_solves_match_a_launch_per_iteration_on_any_thread_count():
-    launches, x_launches, used = _collapse(False, 2)
+@pytest.mark.parametrize("method", ["dfsph", "pbf"])
+def test_worker_solves_match_a_launch_per_iteration_on_any_thread_count(method):
+    """DFSPH's divergence and density solves, or position-based fluids' whole density step."""
+    launches, x_launches, used = _collapse(False, 2, method)
     assert not used
-    two, x_two, used = _collapse(True, 2)
+    two, x_two, used = _collapse(True, 2, method)
     assert used
-    one, x_one, _ = _collapse(True, 1)
+    one, x_one, _ = _collapse(True, 1, method)
     assert two == launches and one == two
     assert sum(s[2] for s in two) > sum(s[0] for s in two)  # the density solves iterated
     np.testing.assert_array_equal(x_one, x_two)

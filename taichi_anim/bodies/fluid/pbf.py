@@ -23,9 +23,10 @@ each boundary sample's goes back to its body as an impulse, so momentum is conse
 
 import taichi as ti
 
-from ...runtime import data_oriented
+from ... import workers
+from ...runtime import compile_with, data_oriented
 from .dfsph import FluidDynamics
-from .pressure import ERROR_SCALE
+from .pressure import ERROR_SCALE, first_sum_above
 from .sph_kernel import cubic_w, cubic_w_grad
 
 
@@ -55,13 +56,18 @@ class PositionBasedFluid(FluidDynamics):
             return 0, 0.0, 0.0
         if self.coupled:
             self.bodies.move(self.model, state)
-        self._predict_positions(h)
-        mean = self._constraints(h) / ERROR_SCALE / n  # launches return the errors' sum (pressure.py)
-        it = 0
-        while it < self.max_iterations and (mean > self.tolerance or it < self.min_iterations):
-            mean = self._project_and_constrain(h) / ERROR_SCALE / n
-            it += 1
-        self._velocities(h)
+        if self._uses_workers():  # the whole step in one launch (worker_solve.py)
+            above = first_sum_above(self.tolerance, n)
+            out = self._density_by_workers(state, h, above, self.min_iterations, self.max_iterations)
+            it, mean = int(out[0]), int(out[1]) / ERROR_SCALE / n
+        else:
+            self._predict_positions(h)
+            mean = self._constraints(h) / ERROR_SCALE / n  # launches return the errors' sum (pressure.py)
+            it = 0
+            while it < self.max_iterations and (mean > self.tolerance or it < self.min_iterations):
+                mean = self._project_and_constrain(h) / ERROR_SCALE / n
+                it += 1
+            self._velocities(h)
         if self.coupled:
             self._push_bodies(self.model, state, h)
         return it, mean, float(self.err_max[None])
@@ -94,16 +100,21 @@ class PositionBasedFluid(FluidDynamics):
         w0 = cubic_w(0.0, self.support)
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
-            self.px[k] = self.grid.sorted_x[k] + h * self.sv[k]
-            self.kacc[k] = 0.0
-            fluid = w0
-            for m in range(self.nn[k]):
-                fluid += self.weight[k, m]
-            rho = self.rho[k] - self.mass * fluid
-            if ti.static(self.coupled):
-                for m in range(self.body_n[k]):
-                    rho -= h * self.body_grad[k, m].dot(self.bodies.v[self.body_nbr[k, m]])
-            self.rho_b[k] = rho
+            self._predict_position_one(k, h, w0)
+
+    @ti.func
+    def _predict_position_one(self, k, h, w0):
+        """Slot k's predicted position and the boundary's share of its density (rho_b)."""
+        self.px[k] = self.grid.sorted_x[k] + h * self.sv[k]
+        self.kacc[k] = 0.0
+        fluid = w0
+        for m in range(self.nn[k]):
+            fluid += self.weight[k, m]
+        rho = self.rho[k] - self.mass * fluid
+        if ti.static(self.coupled):
+            for m in range(self.body_n[k]):
+                rho -= h * self.body_grad[k, m].dot(self.bodies.v[self.body_nbr[k, m]])
+        self.rho_b[k] = rho
 
     @ti.kernel
     def _constraints(self, h: float) -> ti.i64:
@@ -128,24 +139,30 @@ class PositionBasedFluid(FluidDynamics):
         self.err_max[None] = 0.0
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
-            p = self.px[k]
-            # The boundary's share linearised in the particle's motion.
-            rho = self.rho_b[k] + self.wall_grad[k].dot(p - self.grid.sorted_x[k])
-            rho += self.mass * cubic_w(0.0, self.support)
-            g = self.wall_grad[k]
-            sq = ti.cast(0.0, float)
-            for m in range(self.nn[k]):
-                w, gr = cubic_w_grad(p - self.px[self.nbr[k, m]], self.support)
-                rho += self.mass * w
-                gr *= self.mass
-                self.grad[k, m] = gr
-                g += gr
-                sq += gr.dot(gr)
-            c = ti.max(rho / self.rest_density - 1.0, 0.0)
-            den = g.dot(g) + sq
-            self.lam[k] = -c * self.rest_density * self.rest_density / den if den > 0.0 else 0.0
+            c = self._constraint_one(k)
             ti.atomic_add(self.err_sum[None], ti.cast(c * ERROR_SCALE + 0.5, ti.i64))
             ti.atomic_max(self.err_max[None], c)
+
+    @ti.func
+    def _constraint_one(self, k):
+        """Slot k's lambda at the predicted positions (its pairs' m grad W listed); returns its error."""
+        p = self.px[k]
+        # The boundary's share linearised in the particle's motion.
+        rho = self.rho_b[k] + self.wall_grad[k].dot(p - self.grid.sorted_x[k])
+        rho += self.mass * cubic_w(0.0, self.support)
+        g = self.wall_grad[k]
+        sq = ti.cast(0.0, float)
+        for m in range(self.nn[k]):
+            w, gr = cubic_w_grad(p - self.px[self.nbr[k, m]], self.support)
+            rho += self.mass * w
+            gr *= self.mass
+            self.grad[k, m] = gr
+            g += gr
+            sq += gr.dot(gr)
+        c = ti.max(rho / self.rest_density - 1.0, 0.0)
+        den = g.dot(g) + sq
+        self.lam[k] = -c * self.rest_density * self.rest_density / den if den > 0.0 else 0.0
+        return c
 
     @ti.func
     def _project(self, h):
@@ -154,16 +171,74 @@ class PositionBasedFluid(FluidDynamics):
         impulses and the report."""
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
-            lk = self.lam[k]
-            dp = lk * self.wall_grad[k]
-            for m in range(self.nn[k]):
-                dp += (lk + self.lam[self.nbr[k, m]]) * self.grad[k, m]
-            self.px2[k] = self.px[k] + dp / self.rest_density
-            # dv = dp / h = -h kappa grad (dfsph.py's form): kappa = -lambda / (rho0 h^2)
-            self.kacc[k] -= lk / (self.rest_density * h * h)
+            self._project_one(k, h)
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             self.px[k] = self.px2[k]
+
+    @ti.func
+    def _project_one(self, k, h):
+        """Slot k's projected position into px2, and its pressure equivalent summed."""
+        lk = self.lam[k]
+        dp = lk * self.wall_grad[k]
+        for m in range(self.nn[k]):
+            dp += (lk + self.lam[self.nbr[k, m]]) * self.grad[k, m]
+        self.px2[k] = self.px[k] + dp / self.rest_density
+        # dv = dp / h = -h kappa grad (dfsph.py's form): kappa = -lambda / (rho0 h^2)
+        self.kacc[k] -= lk / (self.rest_density * h * h)
+
+    # Passes of the workers' density step (worker_solve.py): predict, constrain (its errors), project,
+    # copy the projection, velocities.
+    PREDICT, CONSTRAIN, PROJECT, COPY, VELOCITIES = 10, 11, 12, 13, 14
+    error_kinds = (CONSTRAIN,)
+
+    @ti.func
+    def _slot(self, kind: ti.template(), state: ti.template(), k, h, divergence):
+        e = ti.cast(0.0, float)
+        if ti.static(kind == self.PREDICT):
+            self._predict_position_one(k, h, cubic_w(0.0, self.support))
+        elif ti.static(kind == self.CONSTRAIN):
+            e = self._constraint_one(k)
+        elif ti.static(kind == self.PROJECT):
+            self._project_one(k, h)
+        elif ti.static(kind == self.COPY):
+            self.px[k] = self.px2[k]
+        else:
+            self.sv[k] = (self.px[k] - self.grid.sorted_x[k]) / h
+        return e
+
+    # Without Taichi's CFG passes, as the DFSPH workers' solve.
+    @compile_with(cfg_optimization=False)
+    @ti.kernel
+    def _density_by_workers(
+        self, state: ti.template(), h: float, above: ti.i64, least: ti.i32, most: ti.i32
+    ) -> ti.types.vector(2, ti.i64):
+        """_density_step's passes in one launch of workers (worker_solve.py): predict, constrain, then
+        project, copy and constrain while the errors' sum is at least `above` or fewer than `least`
+        iterations were made (at most `most`), then the velocities. Returns (iterations, the last
+        errors' fixed-point sum); err_sum and err_max hold the last constraints'."""
+        self._reset_passes()
+        n = self._live()
+        for task in range(self.worker_items):
+            if workers.is_worker(task):
+                self._pass(0, self.PREDICT, state, h, 0, n)
+                self._pass(1, self.CONSTRAIN, state, h, 0, n)
+                q, it = 1, 0
+                s = self.pass_sum[1]
+                while it < most and (s >= above or it < least):
+                    self._pass(q + 1, self.PROJECT, state, h, 0, n)
+                    self._pass(q + 2, self.COPY, state, h, 0, n)
+                    self._pass(q + 3, self.CONSTRAIN, state, h, 0, n)
+                    q += 3
+                    it += 1
+                    s = self.pass_sum[q]
+                self._pass(q + 1, self.VELOCITIES, state, h, 0, n)
+                if task == 0:
+                    self.solve_out[0] = it
+                    self.solve_out[1] = s
+                    self.solve_out[2] = q
+        self._report_pass()
+        return ti.Vector([self.solve_out[0], self.solve_out[1]], dt=ti.i64)
 
     @ti.func
     def _velocities_pass(self, h):

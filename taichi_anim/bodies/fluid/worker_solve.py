@@ -31,7 +31,7 @@ class WorkerSolve:
     def _make_worker_solve(self, make) -> None:
         """Counters for the solve's passes: the warm start, then a correction and a prediction for each of
         at most max_iterations + 1 predictions."""
-        passes = 2 * self.max_iterations + 4
+        passes = 3 * self.max_iterations + 4  # DFSPH needs 2 a prediction, PBF 3 (pbf.py)
         on_cpu = runtime.backend_name() == "cpu"
         wanted = workers.available() if WORKER_SOLVE is None else WORKER_SOLVE and on_cpu
         self.workers = not self.serial and wanted
@@ -56,12 +56,7 @@ class WorkerSolve:
     ) -> ti.types.vector(2, ti.i64):
         """The whole solve (pressure.py's _solve_pass, in passes): returns (iterations, the last errors'
         fixed-point sum); err_sum and err_max hold the last prediction's, as after _iterate."""
-        ti.loop_config(serialize=True)
-        for q in range(self.pass_claim.shape[0]):
-            self.pass_claim[q] = 0
-            self.pass_done[q] = 0
-            self.pass_sum[q] = 0
-            self.pass_max[q] = 0.0
+        self._reset_passes()
         n = self._live()
         for task in range(self.worker_items):
             if workers.is_worker(task):
@@ -83,36 +78,64 @@ class WorkerSolve:
                         break
                     q += 1
                     apply = True
+        self._report_pass()
+        return ti.Vector([self.solve_out[0], self.solve_out[1]], dt=ti.i64)
+
+    @ti.func
+    def _pass(self, q, kind: ti.template(), state: ti.template(), h, divergence, n):
+        """Pass q over the slots [0, n), chunk by chunk: `_slot(kind, ...)` for each slot, its errors
+        summed into pass_sum[q] and their largest into pass_max[q] where the kind measures errors
+        (`error_kinds`); returns when every chunk of the pass is done."""
+        chunks = self.chunks
+        c = workers.claim(self.pass_claim, q)
+        while c < chunks:
+            lo, hi = c * n // chunks, (c + 1) * n // chunks
+            if ti.static(kind in self.error_kinds):
+                total, worst = ti.cast(0, ti.i64), ti.cast(0.0, float)
+                for k in range(lo, hi):
+                    e = self._slot(kind, state, k, h, divergence)
+                    total += ti.cast(e * ERROR_SCALE + 0.5, ti.i64)
+                    worst = ti.max(worst, e)
+                ti.atomic_add(self.pass_sum[q], total)
+                ti.atomic_max(self.pass_max[q], worst)
+            else:
+                for k in range(lo, hi):
+                    self._slot(kind, state, k, h, divergence)
+            workers.finish(self.pass_done, q)
+            c = workers.claim(self.pass_claim, q)
+        workers.wait_done(self.pass_done, q, chunks)
+
+    error_kinds = (2,)  # the kinds of pass whose slots return an error (summed per pass)
+
+    @ti.func
+    def _slot(self, kind: ti.template(), state: ti.template(), k, h, divergence):
+        """Slot k's work in a pass of `kind` (0 the warm start, 1 the correction, 2 the prediction);
+        returns its error (0 where the kind measures none)."""
+        e = ti.cast(0.0, float)
+        if ti.static(kind == 0):
+            self._warm_one(state, k, h, divergence)
+        elif ti.static(kind == 1):
+            self._correct_one(k, h)
+        else:
+            e = self._predict_one(k, h, divergence)
+        return e
+
+    @ti.func
+    def _reset_passes(self):
+        """Every pass's counters to zero (a serial loop: call it at a kernel's top level)."""
+        ti.loop_config(serialize=True)
+        for q in range(self.pass_claim.shape[0]):
+            self.pass_claim[q] = 0
+            self.pass_done[q] = 0
+            self.pass_sum[q] = 0
+            self.pass_max[q] = 0.0
+
+    @ti.func
+    def _report_pass(self):
+        """err_sum and err_max from the last measured pass (solve_out[2]), as a launch-per-iteration
+        solve leaves them (a serial loop: call it at a kernel's top level, after the workers)."""
         ti.loop_config(serialize=True)
         for _ in range(1):
             last = ti.cast(self.solve_out[2], ti.i32)
             self.err_sum[None] = self.pass_sum[last]
             self.err_max[None] = self.pass_max[last]
-        return ti.Vector([self.solve_out[0], self.solve_out[1]], dt=ti.i64)
-
-    @ti.func
-    def _pass(self, q, kind: ti.template(), state: ti.template(), h, divergence, n):
-        """Pass q of the solve over the slots [0, n), chunk by chunk: kind 0 the warm start, 1 the
-        correction, 2 the prediction (its errors summed into pass_sum[q], their largest into
-        pass_max[q]); returns when every chunk of it is done."""
-        chunks = self.chunks
-        c = workers.claim(self.pass_claim, q)
-        while c < chunks:
-            lo, hi = c * n // chunks, (c + 1) * n // chunks
-            if ti.static(kind == 0):
-                for k in range(lo, hi):
-                    self._warm_one(state, k, h, divergence)
-            elif ti.static(kind == 1):
-                for k in range(lo, hi):
-                    self._correct_one(k, h)
-            else:
-                total, worst = ti.cast(0, ti.i64), ti.cast(0.0, float)
-                for k in range(lo, hi):
-                    e = self._predict_one(k, h, divergence)
-                    total += ti.cast(e * ERROR_SCALE + 0.5, ti.i64)
-                    worst = ti.max(worst, e)
-                ti.atomic_add(self.pass_sum[q], total)
-                ti.atomic_max(self.pass_max[q], worst)
-            workers.finish(self.pass_done, q)
-            c = workers.claim(self.pass_claim, q)
-        workers.wait_done(self.pass_done, q, chunks)
