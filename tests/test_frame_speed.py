@@ -195,20 +195,24 @@ b = ta.Builder()
 b.add_cloth_grid(origin=(0, 1, 0), size=(1.0, 1.0), resolution=(n, n), plane="xz", pinned=[0, n - 1])
 b.add_force_gravity()
 model = b.finalize()
-for name, h, count in (("implicit_euler", 1 / 240, 3), ("symplectic_euler", 1e-5, 16)):
+runs = (("implicit_euler", 1 / 240, 3, None), ("symplectic_euler", 1e-5, 16, "launches"),
+        ("symplectic_euler", 1e-5, 16, "parallel_frame"))  # forced: on one thread it is not chosen
+for name, h, count, forced in runs:
     s = model.state()
-    integ = ta.make_integrator(name)
-    integ.step(model, s, h * count, count)
-    mode = integ.stepper_for(model).frame_mode()["mode"]
-    print(name, mode, hashlib.sha256(s.positions().tobytes()).hexdigest())
+    stepper = ta.make_integrator(name).stepper_for(model)
+    if forced:
+        stepper._frame_mode = {"mode": forced, "reason": "test"}
+    stepper.advance(s, h, count)
+    print(name, stepper.frame_mode()["mode"], hashlib.sha256(s.positions().tobytes()).hexdigest())
 """
 
 
 # exhaustive; covered by thread counts: the cloth's implicit step and the blocked frames, default
 @pytest.mark.slow
 def test_large_solves_and_frames_give_the_same_bits_on_1_and_2_threads():
-    """The parallel paths (block loops spread over tasks, per-substep launches) keep every reduction in a
-    fixed order: 1 and 2 threads give bitwise equal states (PLATFORM: gathers, no float atomics)."""
+    """The parallel paths (block loops spread over tasks, per-substep launches, the parallel frame's
+    workers) keep every reduction in a fixed order: 1 and 2 threads give bitwise equal states (gathers,
+    no float atomics; a worker alone runs every chunk of the parallel frame)."""
     import subprocess
     import sys
 
@@ -219,8 +223,8 @@ def test_large_solves_and_frames_give_the_same_bits_on_1_and_2_threads():
     outs = [p.communicate()[0] for p in procs]
     assert all(p.returncode == 0 for p in procs)
     one, two = ([ln for ln in o.splitlines() if not ln.startswith("[Taichi]")] for o in outs)
-    assert len(one) == 2 and one == two
-    assert one[1].split()[1] == "launches"  # 96^2 is above the fused-frame size
+    assert len(one) == 3 and one == two
+    assert [ln.split()[1] for ln in one[1:]] == ["launches", "parallel_frame"]
 
 
 def test_auto_choice_with_an_error_tolerance_meets_it_on_the_closed_form():
