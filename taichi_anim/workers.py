@@ -1,5 +1,5 @@
 """Passes in one parallel CPU launch whose threads wait for each other between passes, instead of a
-parallel loop per pass (integrators/parallel_frame.py, bodies/fluid/pressure.py).
+parallel loop per pass (integrators/parallel_frame.py, bodies/fluid/worker_solve.py).
 
 On the 2-core Xeon a parallel loop costs about 70-90 us to start (Taichi's thread pool wakes its second
 thread for each), more than a pass of a small or medium scene takes. A launch whose loop has one task per

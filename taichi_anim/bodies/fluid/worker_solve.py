@@ -9,7 +9,9 @@ the slots; a prediction's errors are summed per chunk as the same 2^-40 fixed-po
 and with it every stop decision, is exactly the launch-per-iteration solve's, on any number of threads.
 After each prediction every worker reads the finished sum and decides alike whether to iterate on (the
 test of pressure.py's _solve_pass, against first_sum_above's threshold). Each pass has its own claim,
-done, sum and largest-error counters, so none is reset while a late worker may still read it."""
+done, sum and largest-error counters, so none is reset while a late worker may still read it.
+Position-based fluids (pbf.py) run their density step on the same passes, with their own per-slot work
+(`_slot`) and kernel (`_density_by_workers`)."""
 
 import taichi as ti
 
@@ -30,7 +32,7 @@ class WorkerSolve:
 
     def _make_worker_solve(self, make) -> None:
         """Counters for the solve's passes: the warm start, then a correction and a prediction for each of
-        at most max_iterations + 1 predictions."""
+        at most max_iterations + 1 predictions (position-based fluids: three passes an iteration)."""
         passes = 3 * self.max_iterations + 4  # DFSPH needs 2 a prediction, PBF 3 (pbf.py)
         on_cpu = runtime.backend_name() == "cpu"
         wanted = workers.available() if WORKER_SOLVE is None else WORKER_SOLVE and on_cpu
