@@ -26,7 +26,7 @@ LAYERS = [
     # foundations: errors, argument checks, the Taichi runtime, the failure policy, signals
     # (capacity: the size buckets and field pool the runtime's init switches; frontend: Taichi's front end
     # made cheaper and tensor_ops: its vector operations built into the IR, both installed by the runtime;
-    # bulk: many fields written in one launch)
+    # bulk: many fields written in one launch; workers: passes of one launch meeting at barriers)
     (
         "errors",
         "validate",
@@ -36,6 +36,7 @@ LAYERS = [
         "tensor_ops",
         "runtime",
         "bulk",
+        "workers",
         "health",
         "interrupts",
         "compile_clock",
