@@ -98,6 +98,13 @@ def test_the_parallel_frame_is_chosen_by_size_threads_and_terms(monkeypatch):
     monkeypatch.setattr(type(big.element_terms[0]), "splits_evaluation", False)
     assert ta.make_integrator("symplectic_euler").stepper_for(big).frame_mode()["mode"] != "parallel_frame"
     monkeypatch.undo()
+    # A term whose evaluate is overridden below the class that gives evaluate_range: not split.
+    fabric = _cloth(48, fabric=True)
+    assert ta.make_integrator("symplectic_euler").stepper_for(fabric).frame_mode()["mode"] == "parallel_frame"
+    term = fabric.element_terms[0]
+    monkeypatch.setattr(term, "__class__", type("Custom", (type(term),), {"evaluate": type(term).evaluate}))
+    assert ta.make_integrator("symplectic_euler").stepper_for(fabric).frame_mode()["mode"] != "parallel_frame"
+    monkeypatch.undo()
     ta.init("cpu", cpu_threads=1)
     one = _cloth(48, fabric=False)
     assert ta.make_integrator("symplectic_euler").stepper_for(one).frame_mode()["mode"] != "parallel_frame"

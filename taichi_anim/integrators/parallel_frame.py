@@ -40,8 +40,19 @@ def parallel_frame_applies(model, method) -> bool:
     return (
         workers.available()
         and type(method).final_pass is Integrator.final_pass
-        and all(getattr(t, "splits_evaluation", False) for t in model.element_terms)
+        and all(_splits(t) for t in model.element_terms)
     )
+
+
+def _splits(term) -> bool:
+    """Whether `term` evaluates a range of its elements as its `evaluate` does: it says so, and the class
+    that gives its `evaluate_range` also gives its `evaluate` (a subclass that overrides `evaluate` alone
+    would have its ranges evaluated the old way)."""
+
+    def giver(name):
+        return next((c for c in type(term).__mro__ if name in vars(c)), None)
+
+    return bool(getattr(term, "splits_evaluation", False)) and giver("evaluate") is giver("evaluate_range")
 
 
 @data_oriented
