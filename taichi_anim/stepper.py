@@ -25,7 +25,8 @@ MAX_STABLE_SPLIT = 4096  # the most substeps the retry policy takes from the sta
 # A frame of substeps of a fusable method runs as one serial kernel on the CPU below this much work
 # (particles + element entries): there a parallel loop costs more than its work (the second core takes
 # ~80 us to join a loop here); above it, one parallel launch per substep (benchmarks/results/frame_fusion.md:
-# serial frame faster up to 80^2 cloth, 82k work; launches from 96^2, 118k).
+# serial frame faster up to 80^2 cloth, 82k work; launches from 96^2, 118k), or, where it applies, the
+# parallel frame from FRAME_PARALLEL_FROM (below).
 FRAME_SERIAL_BELOW = 100_000
 # From this much work, a frame runs in one parallel launch with barriers between its passes where that
 # applies (integrators/parallel_frame.py). Warp's cloth benchmark on the 2-core Xeon, ms a frame, serial
@@ -228,8 +229,9 @@ class Stepper:
         "blocked": one kernel takes each particle through every substep (particles that do not act on
         each other: integrators/blocked.py);
         "serial_frame": one kernel runs every substep, serially (CPU, work below FRAME_SERIAL_BELOW);
-        "parallel_frame": one kernel runs every substep on every CPU thread, which wait for each other
-        between passes (integrators/parallel_frame.py; CPU, work from FRAME_PARALLEL_FROM);
+        "parallel_frame": one kernel runs every substep on the CPU's workers (one per thread, at most one
+        per core), which wait for each other between passes (integrators/parallel_frame.py; work from
+        FRAME_PARALLEL_FROM);
         "launches": the method's kernel once per substep with nothing else in between; "steps": the
         full step per substep (what the scene needs between substeps: contacts, moving meshes,
         rollback, a multi-stage method; emission and trails where the particles are coupled or on a

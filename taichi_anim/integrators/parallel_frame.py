@@ -8,15 +8,15 @@ while a 64 x 64 cloth's substep is about 180 us of work: the wake-ups bounded th
 starts the threads once per frame, and the passes are separated by a barrier of two atomics
 (3.7 against 89 us a pass on a 2,048-float stencil trial).
 
-How (workers.py): the launch's loop has one task per thread. Each pass of the frame (substep k's
+How (workers.py): the launch's loop has one task per worker. Each pass of the frame (substep k's
 elements: pass 2k; its particles: 2k + 1) is cut into `chunks` ranges; a worker claims the next chunk
 from one counter over the whole frame, waits until every chunk of the passes before it is done (a second
 counter), runs it and counts it done. Claims follow the pass order, so nothing waits for a chunk nobody
 runs: one thread alone (or a second one that starts late) runs every chunk itself. No result depends on
-who ran which chunk, so a frame gives the same bits on any number of threads; each chunk runs the same
-functions per element and per particle as the one-launch-per-substep path (`final_particle`,
-`evaluate_range`), whose frames it equals to round-off (tests/test_parallel_frame.py: kernels compiled
-apart may contract differently)."""
+who ran which chunk, so a frame gives the same bits on any number of threads. Each chunk runs the same
+functions per element and per particle as the one-launch-per-substep path (`final_particle`, and
+`evaluate_range`, the per-element form of `evaluate`), whose frames it equals to round-off
+(tests/test_parallel_frame.py: kernels compiled apart may contract differently)."""
 
 import taichi as ti
 
@@ -94,11 +94,11 @@ class ParallelFrame:
                         for e in ti.static(range(len(model.element_terms))):
                             term = model.element_terms[e]
                             n = term.element_count()
-                            lo, hi = c * n // chunks, (c + 1) * n // chunks
+                            lo, hi = workers.chunk(c, n, chunks)
                             term.evaluate_range(method.caches[e], x, v, t, lo, hi)
                     else:
-                        n = model.live_particles()
-                        for i in range(c * n // chunks, (c + 1) * n // chunks):
+                        lo, hi = workers.chunk(c, model.live_particles(), chunks)
+                        for i in range(lo, hi):
                             method.final_particle(model, state, x, v, x, v, t, t, h, step0 + k, True, i)
                     workers.finish(self.done, 0)
                     g = workers.claim(self.claimed, 0)

@@ -4,8 +4,9 @@ iterated until the mean error is under the tolerance. This mixin holds them, on 
 (the neighbour lists, alpha, kappa) and its neighbourhood pass.
 
 A solve is a launch for its warm start and first prediction and one per iteration, each returning the
-errors' fixed-point sum (2^-40 units: its atomic sum does not depend on thread timing), or, for a small
-liquid whose loops run serially, part of its substep's launch (serial_substep.py, through _solve_pass)."""
+errors' fixed-point sum (2^-40 units: its atomic sum does not depend on thread timing); for a small
+liquid whose loops run serially, part of its substep's launch (serial_substep.py, through _solve_pass);
+for a larger one on the CPU's workers, one launch whose passes meet at barriers (worker_solve.py)."""
 
 import functools
 
@@ -28,20 +29,23 @@ def first_sum_above(tolerance: float, count: int) -> int:
 def first_sums_above(tolerance: float, counts: np.ndarray) -> np.ndarray:
     """first_sum_above(tolerance, n) for every n > 0 of `counts`, in float64 as Python's floats compute
     it: also the thresholds a kernel looks up when the live count is known only inside it (a liquid fed
-    by nozzles, serial_substep.py)."""
+    by nozzles, serial_substep.py). A bisection over the integers (int64 to float64 rounds as Python's
+    int / float does): stepping a float64 sum by 1 stalls once it passes 2^53 (tolerance x count from
+    8,192), which a large liquid's solve reaches."""
     n = np.asarray(counts, dtype=np.float64)
-    e = np.floor(tolerance * ERROR_SCALE * n)
-    while True:
-        high = (e > 0) & (e / ERROR_SCALE / n > tolerance)
-        if not high.any():
-            break
-        e[high] -= 1
-    while True:
-        low = ~(e / ERROR_SCALE / n > tolerance)
-        if not low.any():
-            break
-        e[low] += 1
-    return e.astype(np.int64)
+
+    def above(e):
+        return e.astype(np.float64) / ERROR_SCALE / n > tolerance
+
+    lo = np.zeros(n.shape, np.int64)  # 0 / S / n > tolerance is false for tolerance >= 0
+    hi = np.floor(tolerance * ERROR_SCALE * n).astype(np.int64) + 2
+    while not above(hi).all():
+        hi = np.where(above(hi), hi, 2 * hi)
+    while (hi - lo > 1).any():
+        mid = lo + (hi - lo) // 2
+        up = above(mid)
+        hi, lo = np.where(up, mid, hi), np.where(up, lo, mid)
+    return hi
 
 
 # Warm starts: the share of the last step's summed stiffness a solve starts from. A kappa summed over

@@ -5,8 +5,10 @@ _solve). On the 2-core Xeon each parallel loop costs about 70-90 us to start, an
 break's step made about 12 of them in its two solves.
 
 The passes are pressure.py's per-slot functions (_warm_one, _correct_one, _predict_one) over chunks of
-the slots; a prediction's errors are summed per chunk as the same 2^-40 fixed-point integers, so the sum,
-and with it every stop decision, is exactly the launch-per-iteration solve's, on any number of threads.
+the slots; a prediction's errors are summed per chunk as the same 2^-40 fixed-point integers, whose sum
+does not depend on the order: every stop decision, and every bit, is the same on any number of threads.
+Against a launch per iteration the per-slot code is compiled apart, so it agrees to round-off (the same
+iterations in the tests, unless round-off moves a sum across the threshold).
 After each prediction every worker reads the finished sum and decides alike whether to iterate on (the
 test of pressure.py's _solve_pass, against first_sum_above's threshold). Each pass has its own claim,
 done, sum and largest-error counters, so none is reset while a late worker may still read it.
@@ -91,7 +93,7 @@ class WorkerSolve:
         chunks = self.chunks
         c = workers.claim(self.pass_claim, q)
         while c < chunks:
-            lo, hi = c * n // chunks, (c + 1) * n // chunks
+            lo, hi = workers.chunk(c, n, chunks)
             if ti.static(kind in self.error_kinds):
                 total, worst = ti.cast(0, ti.i64), ti.cast(0.0, float)
                 for k in range(lo, hi):
