@@ -25,8 +25,10 @@ def _cloth(n: int, *, fabric: bool, stiffness: float = 1e3, colliders: bool = Tr
         else ta.ClothMaterial(density=0.2, stretch_stiffness=stiffness, shear_stiffness=stiffness,
                               bend_stiffness=stiffness)
     )  # fmt: skip
-    b.add_cloth_grid(origin=(-0.5, 1.0, -0.5), size=(1.0, 1.0), resolution=(n, n), plane="xz",
-                     pinned=[0, n - 1], material=material)  # fmt: skip
+    cloth = b.add_cloth_grid(origin=(-0.5, 1.0, -0.5), size=(1.0, 1.0), resolution=(n, n), plane="xz",
+                             pinned=[0, n - 1], material=material)  # fmt: skip
+    if fabric:  # a force that depends on time: the frame's substep times are t0 + k h in the kernel
+        b.add_force_aerodynamics(cloth, wind=(2.0, 0.0, 0.0), gust_amplitude=0.5, gust_frequency=50.0)
     b.add_force_gravity()
     b.add_force_drag(1e-4)
     if colliders:
@@ -47,11 +49,12 @@ def _frames(mode: str, n: int, frames: int, substeps: int, h: float, **cloth):
 
 @pytest.mark.parametrize("fabric", [False, True], ids=["springs", "membrane+bending"])
 def test_parallel_frame_equals_a_launch_per_substep_on_any_thread_count(fabric):
-    """Springs (Springs.evaluate_range) or a StVK membrane with dihedral bending (ElementTerm's), drag,
-    a plane and a sphere with friction: 4 frames of 8 substeps equal one launch per substep to the
-    roundings of 32 steps (the two are kernels compiled apart, which LLVM may contract differently: the
-    springs gave the same bits, the membrane 1 ulp in 2 of 1,728 coordinates), and the parallel frame on
-    one thread (which then runs every chunk itself) gives the bits it gives on two."""
+    """Springs (Springs.evaluate_range) or a StVK membrane with dihedral bending and gusting wind
+    (ElementTerm's; the wind depends on time), drag, a plane and a sphere with friction: 4 frames of 16
+    substeps equal one launch per substep to the roundings of 64 steps (kernels compiled apart, which
+    LLVM may contract differently: at 24^2 the springs gave the same bits, the membrane 1 ulp in 2 of
+    1,728 coordinates), and the parallel frame on one thread (which then runs every chunk itself) gives
+    the bits it gives on two."""
     runs = {}
     for threads in (2, 1):
         ta.init("cpu", precision="f32", cpu_threads=threads)
