@@ -20,7 +20,7 @@ Each frame of ours and Warp's reads the positions as NumPy, as `cloth_warp.py` d
 
 import numpy as np
 import taichi as ti
-from cloth_warp import build_ours, ours, theirs
+from cloth_warp import ours, theirs
 from harness import Page, Run, fmt_s, host_clock, init, log, parse_args, peer, ratio, time_run, versions
 
 SIZES, QUICK_SIZES = (32, 64, 128, 256), (32, 64)
@@ -130,21 +130,6 @@ def minimal(cloth, parallel: bool, dt: float, substeps: int):
     return lambda: sim.frame(dt / substeps, substeps)
 
 
-def ours_one_thread(cloth, dt: float, substeps: int):
-    """The engine's parallel frame (integrators/parallel_frame.py) on one thread, which then runs every
-    chunk itself: the work of its passes, which two threads can at best halve."""
-    init("f32", cpu_threads=1)
-    model, state, integ = build_ours(cloth)
-    stepper = integ.stepper_for(model)
-    stepper._frame_mode = {"mode": "parallel_frame", "reason": "one thread, for the bound"}
-
-    def frame():
-        stepper.advance(state, dt / substeps, substeps)
-        return state.positions()
-
-    return frame
-
-
 def main(argv=None) -> int:
     args = parse_args(__doc__, argv)
     wc = peer("warp_cloth")
@@ -163,7 +148,12 @@ def main(argv=None) -> int:
         runs = [
             Run("warp_cpu", lambda c=cloth: theirs(wc, "warp_cpu", c, dt, substeps), sync=host_clock),
             Run("taichi_anim", lambda c=cloth: ours(wc.fresh(c), "cpu", dt, substeps)),
-            Run("ours 1 thread", lambda c=cloth: ours_one_thread(wc.fresh(c), dt, substeps)),
+            # The parallel frame forced onto one thread, which then runs every chunk: the work of its
+            # passes, which two threads can at best halve.
+            Run(
+                "ours 1 thread",
+                lambda c=cloth: ours(wc.fresh(c), "cpu", dt, substeps, cpu_threads=1, mode="parallel_frame"),
+            ),
             Run("minimal serial", lambda c=cloth: minimal(wc.fresh(c), False, dt, substeps)),
             Run("minimal parallel", lambda c=cloth: minimal(wc.fresh(c), True, dt, substeps)),
         ]

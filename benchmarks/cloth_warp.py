@@ -46,12 +46,17 @@ def build_ours(cloth):
     return model, model.state(), ta.make_integrator("symplectic_euler", check_every=16)
 
 
-def ours(cloth, arch: str, dt: float, substeps: int):
-    init("f32", arch)  # after their taichi mode's own ti.init
+def ours(cloth, arch: str, dt: float, substeps: int, *, cpu_threads=None, mode=None):
+    """A frame function of the engine on Warp's cloth; cpu_threads and a frame mode forced (`mode`, for
+    cloth_bound.py's bound) optional."""
+    init("f32", arch, cpu_threads=cpu_threads)  # after their taichi mode's own ti.init
     model, state, integ = build_ours(cloth)
+    stepper = integ.stepper_for(model)
+    if mode is not None:
+        stepper._frame_mode = {"mode": mode, "reason": "forced by the benchmark"}
 
     def frame():
-        integ.step(model, state, dt, substeps)
+        stepper.advance(state, dt / substeps, substeps)
         # The engine's read of positions (a float64 copy; 79 against 140 us for Taichi's to_numpy at 32^2,
         # which starts a parallel loop); warp_cpu returns a view of its array.
         return state.positions()

@@ -22,6 +22,13 @@ import taichi as ti
 from . import runtime
 
 TASK_ITEMS = 512  # iterations per task of a Taichi 1.7 CPU loop of known size (its adaptive block)
+# Chunks per pass and worker: more than one, so a worker that is late to start or slowed by another process
+# on its core leaves work that the others take. Warp's cloth (integrators/parallel_frame.py) at 32^2 /
+# 64^2 / 128^2 on the 2-core Xeon, ms a frame, two runs: 1 chunk 0.92, 0.64 / 3.31, 1.87 / 7.08, 7.25;
+# 2: 0.88, 0.93 / 2.24, 1.83 / 6.73, 6.69; 4: 0.75, 0.61 / 1.77, 2.14 / 6.51, 6.65; 8: 0.88, 0.72 / 2.74,
+# 2.57 / 6.89, 6.75 (this VM's second core comes and goes: the spread within a setting is as large as
+# between them).
+CHUNKS_PER_WORKER = 4
 
 
 def usable_cores() -> int:
@@ -42,6 +49,11 @@ def count() -> int:
     """Workers a launch runs: one per thread, but no more than the cores (a worker spinning at a barrier
     on a core shared with another would wait out its time slice)."""
     return max(1, min(runtime.cpu_threads(), usable_cores()))
+
+
+def chunks() -> int:
+    """Chunks each pass is cut into."""
+    return CHUNKS_PER_WORKER * count()
 
 
 def loop_size() -> int:

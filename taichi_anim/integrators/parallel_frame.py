@@ -24,13 +24,6 @@ from .. import workers
 from ..runtime import compile_with, data_oriented
 from .base import Integrator
 
-# Chunks per pass and thread: more than one, so a thread that is late to start or slowed by the other
-# process on its core leaves work that the other thread takes. Warp's cloth at 32^2 / 64^2 / 128^2 on the
-# 2-core Xeon, ms a frame, two runs: 1 chunk 0.92, 0.64 / 3.31, 1.87 / 7.08, 7.25; 2: 0.88, 0.93 / 2.24,
-# 1.83 / 6.73, 6.69; 4: 0.75, 0.61 / 1.77, 2.14 / 6.51, 6.65; 8: 0.88, 0.72 / 2.74, 2.57 / 6.89, 6.75
-# (this VM's second core comes and goes: the spread within a setting is as large as between them).
-CHUNKS_PER_THREAD = 4
-
 
 def parallel_frame_applies(model, method) -> bool:
     """Whether frames of `method` on `model` can run here: on the CPU with at least two threads and two
@@ -62,8 +55,7 @@ class ParallelFrame:
     def __init__(self, model, method):
         self.model = model
         self.method = method
-        self.threads = workers.count()
-        self.chunks = CHUNKS_PER_THREAD * self.threads
+        self.loop_size, self.chunks = workers.loop_size(), workers.chunks()
         self.claimed = model.new_field(self, "parallel_frame_claimed", ti.i32, 1)
         self.done = model.new_field(self, "parallel_frame_done", ti.i32, 1)
 
@@ -81,7 +73,7 @@ class ParallelFrame:
         self.claimed[0] = 0
         self.done[0] = 0
         chunks = self.chunks
-        for task in range(self.threads * workers.TASK_ITEMS):
+        for task in range(self.loop_size):
             if workers.is_worker(task):
                 last = 2 * count * chunks
                 g = workers.claim(self.claimed, 0)

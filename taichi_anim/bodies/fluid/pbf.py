@@ -56,7 +56,7 @@ class PositionBasedFluid(FluidDynamics):
             return 0, 0.0, 0.0
         if self.coupled:
             self.bodies.move(self.model, state)
-        if self._uses_workers():  # the whole step in one launch (worker_solve.py)
+        if self.workers:  # the whole step in one launch (worker_solve.py)
             above = first_sum_above(self.tolerance, n)
             out = self._density_by_workers(state, h, above, self.min_iterations, self.max_iterations)
             it, mean = int(out[0]), int(out[1]) / ERROR_SCALE / n
@@ -204,7 +204,7 @@ class PositionBasedFluid(FluidDynamics):
         elif ti.static(kind == self.COPY):
             self.px[k] = self.px2[k]
         else:
-            self.sv[k] = (self.px[k] - self.grid.sorted_x[k]) / h
+            self._velocity_one(k, h)
         return e
 
     # Without Taichi's CFG passes, as the DFSPH workers' solve.
@@ -244,4 +244,8 @@ class PositionBasedFluid(FluidDynamics):
     def _velocities_pass(self, h):
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
-            self.sv[k] = (self.px[k] - self.grid.sorted_x[k]) / h
+            self._velocity_one(k, h)
+
+    @ti.func
+    def _velocity_one(self, k, h):
+        self.sv[k] = (self.px[k] - self.grid.sorted_x[k]) / h

@@ -84,7 +84,7 @@ class PressureSolves:
         least = min(self.min_iterations, 1) if divergence else self.min_iterations
         # Each launch returns the errors' fixed-point sum: reading the field after it would be one more
         # launch per iteration (a small liquid's frame made about 60 such reads).
-        if self._uses_workers():  # the whole solve in one launch (worker_solve.py)
+        if self.workers:  # the whole solve in one launch (worker_solve.py)
             above = first_sum_above(tol, n)
             out = self._solve_by_workers(state, h, int(divergence), above, least, self.max_iterations)
             it, mean = int(out[0]), int(out[1]) / ERROR_SCALE / n

@@ -21,7 +21,6 @@ from ... import runtime, workers
 from ...runtime import compile_with, data_oriented
 from .pressure import ERROR_SCALE, WARM_DIVERGENCE
 
-CHUNKS_PER_THREAD = 4  # as integrators/parallel_frame.py: a late thread leaves chunks to the other
 # None: a liquid whose loops run in parallel solves by workers where they run (workers.available());
 # True: on the CPU at any thread count (one thread then runs every chunk); False: never (a launch per
 # iteration). Read when the liquid's solver is made; tests compare the paths.
@@ -41,16 +40,12 @@ class WorkerSolve:
         self.workers = not self.serial and wanted
         if not self.workers:
             return
-        self.worker_items = workers.loop_size()
-        self.chunks = CHUNKS_PER_THREAD * (self.worker_items // workers.TASK_ITEMS)
+        self.worker_items, self.chunks = workers.loop_size(), workers.chunks()
         self.pass_claim = make(self, "fluid_pass_claim", ti.i32, passes)
         self.pass_done = make(self, "fluid_pass_done", ti.i32, passes)
         self.pass_sum = make(self, "fluid_pass_sum", ti.i64, passes)
         self.pass_max = make(self, "fluid_pass_max", float, passes)
         self.solve_out = make(self, "fluid_solve_out", ti.i64, 3)
-
-    def _uses_workers(self) -> bool:
-        return self.workers
 
     # Without Taichi's CFG passes (its other solve kernels' code, inlined twice more, compiles slowly).
     @compile_with(cfg_optimization=False)
