@@ -80,6 +80,40 @@ def test_truncated_field_matches_brute_force_within_the_stated_bound(cutoff, nei
     assert np.all(psi[~inner] == 0.0)
 
 
+@pytest.mark.parametrize("precision", ["f32", "f64"])
+def test_blocks_shared_out_by_workers_give_the_plain_loops_bits(precision):
+    """The gather's blocks claimed one by one by the CPU's workers (blobs/field.py) against a loop over
+    them: the same bits, on 1 and 2 threads, and the truncated sum at sampled nodes."""
+    import taichi_anim.blobs.field as field_module
+
+    rng = np.random.default_rng(11)
+    n, sigma = 6000, 0.04
+    x = rng.uniform((-0.6, -0.15, -0.6), (0.6, 0.15, 0.6), (n, 3))
+    runs = {}
+    for threads, workers in ((2, True), (2, False), (1, True)):
+        ta.init("cpu", precision=precision, cpu_threads=threads)
+        field_module.WORKER_GATHER = workers
+        try:
+            bf = ta.BlobField(capacity=n, sigma=sigma, bounds=((-0.8,) * 3, (0.8,) * 3), resolution=80)
+        finally:
+            field_module.WORKER_GATHER = None
+        bf.evaluate(x[::-1])  # an earlier cloud to clear
+        bf.evaluate(x)
+        assert bf.active_block_count > 300  # many blocks to share out
+        runs[threads, workers] = bf.values()
+    assert np.array_equal(runs[2, True], runs[2, False])
+    assert np.array_equal(runs[2, True], runs[1, True])
+    pick = rng.choice(np.prod(bf.dims), 3000, replace=False)
+    nodes = bf.node_positions().reshape(-1, 3)[pick]
+    inner = np.zeros(bf.dims, bool)
+    inner[1:-1, 1:-1, 1:-1] = True
+    keep = inner.ravel()[pick]
+    truncated = brute_force(nodes[keep], x, sigma, bf.cutoff_radius)
+    # f32: the positions' rounding, and a particle at the cutoff counted or not (1.2e-4 of ~5).
+    rtol = 1e-12 if precision == "f64" else 1e-4
+    np.testing.assert_allclose(runs[2, True].reshape(-1)[pick][keep], truncated, rtol=rtol, atol=rtol)
+
+
 # ------------------------------------------------------------------------------------------ one blob
 
 

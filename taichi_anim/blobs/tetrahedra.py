@@ -101,12 +101,12 @@ class MarchingTetrahedra:
     def _crossing_mask(self, node, iso):
         """Bit d-1 set when the edge from `node` in direction d crosses the level."""
         dims = ti.Vector(self.f.dims)
-        inside = self.f.psi[node] > iso
+        inside = self.f.value(node) > iso
         mask = 0
         for d in ti.static(range(1, 8)):
             q = node + ti.Vector(CORNER[d])
             if (q < dims).all():
-                if (self.f.psi[q] > iso) != inside:
+                if (self.f.value(q) > iso) != inside:
                     mask |= 1 << (d - 1)
         return mask
 
@@ -118,7 +118,7 @@ class MarchingTetrahedra:
         if (node < dims - 1).all():
             m = 0
             for c in ti.static(range(8)):
-                if self.f.psi[node + ti.Vector(CORNER[c])] > iso:
+                if self.f.value(node + ti.Vector(CORNER[c])) > iso:
                     m |= 1 << c
         return m
 
@@ -182,11 +182,11 @@ class MarchingTetrahedra:
                 node = f.block_node(b, local)
                 if f.inside_grid(node):
                     mask = self.node_edges[node] >> 12
-                    a = f.psi[node]
+                    a = f.value(node)
                     for d in ti.static(range(1, 8)):
                         if mask & (1 << (d - 1)):
                             off = ti.Vector(CORNER[d])
-                            w = (iso - a) / (f.psi[node + off] - a)  # crossing: the values differ
+                            w = (iso - a) / (f.value(node + off) - a)  # crossing: the values differ
                             p = f.node_position(node[0], node[1], node[2]) + f.spacing * w * off
                             for c in ti.static(range(3)):
                                 verts[v, c] = p[c]
