@@ -6,9 +6,12 @@ Clouds: the `dam_break` demo's column (per_width particles across a, 2a high) at
 of collapse (a splashing surge), f32. Both on a grid of half a spacing (the particle radius, r = d/2):
 ours with sigma = d and iso = the field's half level inside the lattice; splashsurf with its
 documented defaults relative to the radius, smoothing length 2r (SPH support 4r = 2d, as the solver)
-and iso 0.6. Timed after a warm-up call (its compile reported apart), median of repeats, both on every
-core. Quality, by `spatial.mesh_report`: closed, manifold, oriented, no self-intersection; the enclosed
-volume against the particles' volume N d^3; triangles.
+and iso 0.6. Ours gives each vertex its normal from the field's analytic gradient; splashsurf is timed
+twice: the surface alone (`reconstruct_surface`, as the engine's surface without normals would be) and with
+normals from its colour field's SPH gradient (`reconstruction_pipeline(compute_normals=True,
+sph_normals=True)`, the like of ours). Timed after a warm-up call (its compile reported apart), median of
+repeats, both on every core. Quality, by `spatial.mesh_report`: closed, manifold, oriented, no
+self-intersection; the enclosed volume against the particles' volume N d^3; triangles.
 
     .venv/bin/python benchmarks/fluid_surfacing.py [--quick]
 """
@@ -59,16 +62,22 @@ def ours(x: np.ndarray, d: float, repeats: int) -> dict:
     return dict(seconds=t, first=first, **quality(mesh.vertices, mesh.triangles, len(x), d))
 
 
-def splashsurf(x: np.ndarray, d: float, repeats: int) -> dict:
+def splashsurf(x: np.ndarray, d: float, repeats: int, normals: bool) -> dict:
     import pysplashsurf
 
     # pysplashsurf 0.14 takes smoothing_length and cube_size in particle radii, although its docstring
     # says absolute units: absolute values (0.02 m, 0.01 m) gave one tiny sphere per particle.
+    settings = dict(particle_radius=0.5 * d, rest_density=1000.0, smoothing_length=2.0, cube_size=1.0,
+                    iso_surface_threshold=0.6, multi_threading=True)  # fmt: skip
+    x32 = x.astype(np.float32)
+
     def surface():
-        return pysplashsurf.reconstruct_surface(
-            x.astype(np.float32), particle_radius=0.5 * d, rest_density=1000.0, smoothing_length=2.0,
-            cube_size=1.0, iso_surface_threshold=0.6, multi_threading=True,
-        ).mesh  # fmt: skip
+        if normals:
+            pipeline = pysplashsurf.reconstruction_pipeline
+            mesh, _ = pipeline(x32, compute_normals=True, sph_normals=True, **settings)
+            assert "normals" in mesh.point_attributes
+            return mesh.mesh
+        return pysplashsurf.reconstruct_surface(x32, **settings).mesh
 
     a = clock()
     mesh = surface()
@@ -86,14 +95,17 @@ def main(argv=None) -> None:
     for per_width in sizes:
         for name, x, d in clouds(per_width, 0.4):
             log(f"{name}: {len(x)} particles")
-            a, b = ours(x, d, repeats), splashsurf(x, d, repeats)
-            for engine, r in (("taichi_anim blobs", a), ("splashsurf 0.14 (pysplashsurf)", b)):
+            a = ours(x, d, repeats)
+            b, c = splashsurf(x, d, repeats, False), splashsurf(x, d, repeats, True)
+            for engine, r in (("taichi_anim blobs, normals", a), ("splashsurf 0.14, surface only", b),
+                              ("splashsurf 0.14, SPH normals", c)):  # fmt: skip
                 rows.append([name, len(x), engine, fmt_s(r["seconds"]), f"{len(x) / r['seconds']:.3g}",
                              r["triangles"], "ok" if r["ok"] else "**failed**", f"{r['volume']:.3f}",
                              fmt_s(r["first"])])  # fmt: skip
                 log(" | ".join(map(str, rows[-1])))
             data.append(dict(cloud=name, particles=len(x), spacing=d, ours=a, splashsurf=b,
-                             speed_ratio=b["seconds"] / a["seconds"]))  # fmt: skip
+                             splashsurf_normals=c, speed_ratio=b["seconds"] / a["seconds"],
+                             speed_ratio_normals=c["seconds"] / a["seconds"]))  # fmt: skip
     page = Page(
         "fluid_surfacing",
         "Surfacing a liquid: blobs against splashsurf",
@@ -102,7 +114,9 @@ def main(argv=None) -> None:
          "grid": "half a spacing (the particle radius) for both",
          "ours": f"Gaussian blobs sigma = d, iso = half the interior value, cutoff {LIQUID_CUTOFF} sigma, "
                  "Open3D marching cubes",
-         "splashsurf": "smoothing length 2r (support 2d), cube r, iso 0.6, rest density 1000, multi-threaded",
+         "splashsurf": "smoothing length 2r (support 2d), cube r, iso 0.6, rest density 1000, "
+                       "multi-threaded; surface only: reconstruct_surface; SPH normals: "
+                       "reconstruction_pipeline(compute_normals, sph_normals)",
          "threads": os.cpu_count(), "repeats": f"median of {repeats} after the first call"},
     )  # fmt: skip
     page.table(
@@ -110,8 +124,9 @@ def main(argv=None) -> None:
         ["cloud", "particles", "engine", "time", "particles/s", "triangles", "closed manifold",
          "volume / N d^3", "first call"],
         rows,
-        "Time ratios splashsurf / ours: "
-        + ", ".join(f"{r['cloud']} ({r['particles']}): {r['speed_ratio']:.2f}x" for r in data),
+        "Time ratios splashsurf / ours (surface only; with SPH normals): "
+        + ", ".join(f"{r['cloud']} ({r['particles']}): {r['speed_ratio']:.2f}x; "
+                    f"{r['speed_ratio_normals']:.2f}x" for r in data),  # fmt: skip
     )  # fmt: skip
     page.write(data)
 

@@ -39,7 +39,7 @@ from ..capacity import plain
 from ..collision.neighbors import make_neighbor_search
 from ..errors import ParameterError
 from ..runtime import data_oriented, np_float
-from .blocks import BLOCK
+from .blocks import BLOCK, BLOCK3
 from .isosurface import DEFAULT_METHOD, BlobMesh, extract
 
 DEFAULT_CUTOFF = 3.0  # in units of sigma; see the module docstring
@@ -58,7 +58,7 @@ class BlobField:
     below exp(-9) = 1.2e-4 per particle); neighbor_method: see `make_neighbor_search` (default "grid":
     every visited block and every mesh vertex is a query, many more than particles, so the grid pays
     for its build at any particle count, unlike particle-particle searches).
-    Fields: psi, the node values flat in row-major order over the grid padded to whole blocks
+    Fields: psi, the node values flat, block by block over the grid padded to whole blocks
     (`value(node)` reads one from Taichi scope, `values()` gives the (nx, ny, nz) array).
     """
 
@@ -91,18 +91,22 @@ class BlobField:
         )
         self.lo = tuple(float(c) for c in lo)
         self.hi = tuple(float(a + self.spacing * (n - 1)) for a, n in zip(lo, self.dims, strict=True))
-        self.cutoff_radius = self.cutoff * self.sigma
         self.truncation_bound_per_particle = float(np.exp(-(self.cutoff**2)))
         self.block_dims = tuple((n + BLOCK - 1) // BLOCK for n in self.dims)
         self.block_count = int(np.prod(self.block_dims))
-        # psi is stored over whole blocks, so a block's row of BLOCK nodes along z is one straight run
-        # of memory that no other block touches (see _splat).
+        # psi is stored block by block over whole blocks, so a block's row of BLOCK nodes along z is one
+        # straight run of memory, and a block's values share no cache line with another's (see _splat).
         self.padded_dims = tuple(BLOCK * n for n in self.block_dims)
+        # A particle's blob along one axis reaches at most `profile_width` nodes, from its first_node.
+        self.cutoff_radius = self.cutoff * self.sigma
+        self.profile_width = int(np.floor(2.0 * self.cutoff_radius / self.spacing)) + 2
         fb = np.dtype(np_float()).itemsize
-        # psi and the isosurface's int32 edge index per node; the particles' staging field and buffer.
+        # psi and the isosurface's int32 edge index per node; per particle: the staging field and buffer,
+        # and the axis profiles (squared distance and Gaussian factor per node) with their first nodes.
         nodes = math.prod(self.padded_dims)
         validate.capacity(f"resolution {resolution}", nodes, bytes_each=fb + 4, unit="grid nodes")
-        validate.capacity("capacity", self.capacity, bytes_each=6 * fb, unit="particles")
+        per_particle = (6 + 6 * self.profile_width) * fb + 12
+        validate.capacity("capacity", self.capacity, bytes_each=per_particle, unit="particles")
 
         self.psi = make(self, "blob_psi", float, nodes)
         self.block_flag = make(self, "blob_block_flag", ti.i32, self.block_count)
@@ -114,6 +118,12 @@ class BlobField:
         self.active_box = make(self, "blob_active_box", ti.i32, 2, (3,))
         # The gather's next unclaimed block, where the CPU's workers share the blocks out (_gather_blocks).
         self.block_claim = make(self, "blob_block_claim", ti.i32, 1)
+        # Per neighbour slot k and axis c: the first node the particle's blob reaches (first_node[k][c]),
+        # and for the profile_width nodes from it the squared distance along c and exp(-that / sigma^2).
+        width = self.profile_width
+        self.first_node = make(self, "blob_first_node", ti.i32, self.capacity, (3,))
+        self.axis_q = make(self, "blob_axis_q", float, (self.capacity, 3, width))
+        self.axis_e = make(self, "blob_axis_e", float, (self.capacity, 3, width))
         self._claimed = workers.available() if WORKER_GATHER is None else WORKER_GATHER
         self._worker_items = workers.loop_size()
         self._reset()  # a pooled field (capacity buckets) holds what its last owner left
@@ -133,7 +143,7 @@ class BlobField:
         rc = self.cutoff_radius
         box = (tuple(lo - rc), tuple(np.asarray(self.hi) + rc))
         self.vertex_neighbors = make_neighbor_search(
-            self.capacity, rc, domain=box, method=neighbor_method, make=make
+            self.capacity, 0.5 * rc, domain=box, method=neighbor_method, make=make
         )
         self._x = None  # staging field for NumPy input, allocated on first use
         self._inv_s2 = 1.0 / self.sigma**2
@@ -208,8 +218,11 @@ class BlobField:
 
     @ti.func
     def node_index(self, node):
-        """Index in `psi` of the integer node coordinates `node` (inside the padded grid)."""
-        return (node[0] * self.padded_dims[1] + node[1]) * self.padded_dims[2] + node[2]
+        """Index in `psi` of the integer node coordinates `node` (inside the padded grid): block by block
+        (each block's BLOCK^3 values contiguous, z fastest), so two threads working on neighbouring
+        blocks never write the same cache line."""
+        q = node % BLOCK
+        return self.block_of(node) * BLOCK3 + (q[0] * BLOCK + q[1]) * BLOCK + q[2]
 
     @ti.func
     def value(self, node):
@@ -222,42 +235,63 @@ class BlobField:
         return (node >= 0).all() and (node < ti.Vector(self.dims)).all()
 
     @ti.func
+    def _profiles(self):
+        """Each particle's axis profiles (call at a kernel's top level, after the neighbours' build): the
+        Gaussian factorises over the axes, so 3 x profile_width exponentials per particle serve every
+        block it reaches (computed per particle and block, the exponentials took about half the gather:
+        24 per pair, ~10 blocks per particle)."""
+        lo = ti.Vector(self.lo, dt=float)
+        for k in range(self.neighbors.size[None]):
+            p = self.neighbors.sorted_x[k]
+            # Clamped before the cast: a particle far outside the grid must not overflow i32 (it reaches
+            # no node then, and its profile is never read).
+            first = ti.floor((p - self.cutoff_radius - lo) / self.spacing)
+            f = ti.cast(ti.min(ti.max(first, -2.0 * self.profile_width), 1.0e9), ti.i32)
+            self.first_node[k] = f
+            for c in ti.static(range(3)):
+                for j in range(self.profile_width):
+                    t = lo[c] + (f[c] + j) * self.spacing - p[c]
+                    self.axis_q[k, c, j] = t * t
+                    self.axis_e[k, c, j] = ti.exp(-t * t * self._inv_s2)
+
+    @ti.func
     def _splat(self, b, k, ret: ti.template()):
         """Add particle k's blob to the nodes [ret.lo, ret.hi) of block b (first node ret.base) that lie
-        within the cutoff radius: exp(-|d|^2/s^2) = exp(-dx^2/s^2) exp(-dy^2/s^2) exp(-dz^2/s^2).
+        within the cutoff radius: exp(-|d|^2/s^2) = exp(-dx^2/s^2) exp(-dy^2/s^2) exp(-dz^2/s^2), the
+        factors read from the particle's axis profiles.
 
         Along z, every row adds to all BLOCK of its nodes, zero where the node is outside the sphere or
         the block's range: a fixed run of adjacent nodes compiles to straight-line code that the CPU's
         vector units take (a loop over the sphere's own nodes took 2.6x as long, measured on a 13,200
         particle lattice), and adding 0 leaves a non-negative sum's bits as they are."""
-        d = self.neighbors.sorted_x[k] - self.node_position(ret.base[0], ret.base[1], ret.base[2])
-        q = ti.Matrix.zero(float, 3, BLOCK)  # squared distance along each axis, node by node
-        e = ti.Matrix.zero(float, 3, BLOCK)
-        rc2 = self.cutoff_radius * self.cutoff_radius
-        for c, a in ti.static(ti.ndrange(3, BLOCK)):
-            t = a * self.spacing - d[c]
-            q[c, a] = t * t
-            e[c, a] = ti.exp(-t * t * self._inv_s2)
-            if a < ret.lo[c] or a >= ret.hi[c]:
-                q[c, a] = rc2  # outside the block's range: fails the sphere test below
-        # Only the block's nodes in the particle's cutoff box (a node of margin for round-off; the
-        # sphere tests decide): most particles a block finds touch a corner of it. The same nodes and
-        # sums as the whole block's loops; the liquid's surfaces evaluated 8-30 % faster.
-        lo = ti.max(ret.lo, ti.cast(ti.floor((d - self.cutoff_radius) / self.spacing), ti.i32))
-        hi = ti.min(ret.hi, ti.cast(ti.floor((d + self.cutoff_radius) / self.spacing), ti.i32) + 2)
-        for i in range(lo[0], hi[0]):
-            for j in range(lo[1], hi[1]):
-                qij = q[0, i] + q[1, j]
-                if qij < rc2:
-                    eij = e[0, i] * e[1, j]
-                    row = self.node_index(ret.base + ti.Vector([i, j, 0]))
-                    for m in ti.static(range(BLOCK)):
-                        w = eij * e[2, m]
-                        if qij + q[2, m] >= rc2:
-                            w = 0.0
-                        # A plain add, not `+=` (which Taichi makes atomic): only this block's thread
-                        # writes these nodes.
-                        self.psi[row + m] = self.psi[row + m] + w
+        width = self.profile_width
+        start = ret.base - self.first_node[k]  # the block's first node in the particle's profiles
+        # Only the block's nodes in the particle's profile: most particles a block's query finds touch
+        # a corner of it, and some none.
+        lo = ti.max(ret.lo, -start)
+        hi = ti.min(ret.hi, width - start)
+        if (lo < hi).all():
+            rc2 = self.cutoff_radius * self.cutoff_radius
+            q = ti.Matrix.zero(float, 3, BLOCK)  # squared distance along each axis, node by node
+            e = ti.Matrix.zero(float, 3, BLOCK)
+            for c, a in ti.static(ti.ndrange(3, BLOCK)):
+                q[c, a] = rc2  # outside the profile or the block's range: fails the sphere test below
+                if lo[c] <= a < hi[c]:
+                    q[c, a] = self.axis_q[k, c, start[c] + a]
+                    e[c, a] = self.axis_e[k, c, start[c] + a]
+            for i in range(lo[0], hi[0]):
+                for j in range(lo[1], hi[1]):
+                    qij = q[0, i] + q[1, j]
+                    if qij < rc2:
+                        eij = e[0, i] * e[1, j]
+                        row = b * BLOCK3 + (i * BLOCK + j) * BLOCK
+                        for m in ti.static(range(BLOCK)):
+                            w = eij * e[2, m]
+                            if qij + q[2, m] >= rc2:
+                                w = 0.0
+                            # A plain add, not `+=` (which Taichi makes atomic): only this block's thread
+                            # writes these nodes.
+                            self.psi[row + m] = self.psi[row + m] + w
 
     # The two neighbour structures' builds and the evaluation in one launch: three kernels to compile
     # or load before (the builds' for each structure).
@@ -265,6 +299,7 @@ class BlobField:
     def _evaluate(self, x: ti.template(), n: ti.i32, death: ti.template(), t: float, alive: ti.template()):
         self.neighbors.build_pass(x, n, death, t, alive)
         self.vertex_neighbors.build_pass(x, n, death, t, alive)
+        self._profiles()
         self._activate_blocks()
         self._gather_blocks()
 
@@ -289,10 +324,8 @@ class BlobField:
         # Clear what the previous evaluation wrote (its blocks only, not the whole grid).
         rows = BLOCK * BLOCK
         for j in range(self.active_count[None] * rows):
-            r = j % rows
-            base = self.block_coords(self.active_block[j // rows]) * BLOCK
-            row = self.node_index(base + ti.Vector([r // BLOCK, r % BLOCK, 0]))
-            for m in ti.static(range(BLOCK)):  # a block's row along z is BLOCK adjacent values
+            row = self.active_block[j // rows] * BLOCK3 + (j % rows) * BLOCK
+            for m in ti.static(range(BLOCK)):  # a row along z: BLOCK adjacent values
                 self.psi[row + m] = 0.0
         for s in range(self.active_count[None]):
             b = self.active_block[s]
@@ -379,7 +412,20 @@ class BlobField:
         for v in range(points.shape[0]):
             p = ti.Vector([points[v, 0], points[v, 1], points[v, 2]], dt=float)
             acc = self._Grad(p=p, g=ti.Vector.zero(float, 3))
-            self.vertex_neighbors.for_each_neighbor(v, p, self.cutoff_radius, self._add_gradient, acc)
+            grid = self.vertex_neighbors
+            base = grid.coords(p)
+            dims = grid.dims
+            z0 = ti.max(base[2] - 2, 0)
+            z1 = ti.min(base[2] + 2, dims[2] - 1)
+            r2 = self.cutoff_radius * self.cutoff_radius
+            for q in range(25):
+                cx = base[0] + q // 5 - 2
+                cy = base[1] + q % 5 - 2
+                if 0 <= cx < dims[0] and 0 <= cy < dims[1]:
+                    row = (cx * dims[1] + cy) * dims[2]
+                    for kk in range(grid.cell_start[row + z0], grid.cell_start[row + z1 + 1]):
+                        if (p - grid.sorted_x[kk]).norm_sqr() < r2:
+                            self._add_gradient(v, kk, acc)
             # -grad psi = (2 / sigma^2) sum (p - p_i) exp(...): the positive factor drops out on normalising.
             length = acc.g.norm()
             n = ti.Vector.zero(float, 3)
@@ -398,13 +444,23 @@ class BlobField:
             self._outward_normals(pts, out)
         return out
 
-    # A row of nodes per iteration: a 3-D ndrange over runtime sizes divides each flat index back into
-    # (i, j, k), which took about 10 ns a node (1.3 ms for the dam break's box) for a plain copy.
+    # The flagged blocks' rows into a zeroed box (every other node is 0): a row of BLOCK values per
+    # iteration, instead of a node-by-node walk of the whole box (8 ms for a 54,000-particle surge's
+    # 2.5 million nodes).
     @ti.kernel
     def _copy_box(self, out: ti.types.ndarray(), o0: ti.i32, o1: ti.i32, o2: ti.i32):
-        for i, j in ti.ndrange(out.shape[0], out.shape[1]):
-            for k in range(out.shape[2]):
-                out[i, j, k] = self.value(ti.Vector([o0 + i, o1 + j, o2 + k]))
+        rows = BLOCK * BLOCK
+        for r in range(self.active_count[None] * rows):
+            b = self.active_block[r // rows]
+            node = self.block_coords(b) * BLOCK + ti.Vector([(r % rows) // BLOCK, r % BLOCK, 0])
+            i = node[0] - o0
+            j = node[1] - o1
+            if 0 <= i < out.shape[0] and 0 <= j < out.shape[1]:
+                src = b * BLOCK3 + (r % rows) * BLOCK
+                for m in ti.static(range(BLOCK)):
+                    k = node[2] + m - o2
+                    if 0 <= k < out.shape[2]:
+                        out[i, j, k] = self.psi[src + m]
 
     def active_volume(self) -> tuple[np.ndarray, np.ndarray]:
         """(origin (3,) int node index, psi (a, b, c) copy) of the smallest box of nodes holding every
@@ -415,14 +471,16 @@ class BlobField:
         box = self.active_box.to_numpy()
         lo = np.maximum(box[0] * BLOCK - 1, 0)
         hi = np.minimum((box[1] + 1) * BLOCK, np.asarray(self.dims) - 1)  # inclusive
-        out = np.empty(tuple(int(n) for n in hi - lo + 1), dtype=np_float())
+        out = np.zeros(tuple(int(n) for n in hi - lo + 1), dtype=np_float())
         self._copy_box(out, int(lo[0]), int(lo[1]), int(lo[2]))
         return lo.astype(np.int64), out
 
     def values(self) -> np.ndarray:
         """psi at every node, (nx, ny, nz)."""
+        blocks = self.psi.to_numpy().reshape(self.block_dims + (BLOCK,) * 3)
+        grid = blocks.transpose(0, 3, 1, 4, 2, 5).reshape(self.padded_dims)
         nx, ny, nz = self.dims
-        return self.psi.to_numpy().reshape(self.padded_dims)[:nx, :ny, :nz].copy()
+        return np.ascontiguousarray(grid[:nx, :ny, :nz])
 
     def node_positions(self) -> np.ndarray:
         """(nx, ny, nz, 3) node positions [m]."""
