@@ -114,6 +114,26 @@ def test_blocks_shared_out_by_workers_give_the_plain_loops_bits(precision):
     np.testing.assert_allclose(runs[2, True].reshape(-1)[pick][keep], truncated, rtol=rtol, atol=rtol)
 
 
+def test_normals_are_the_analytic_gradient_whatever_the_neighbour_search():
+    """The surface's normals come from the particles within the cutoff, found by the grid's scan of
+    half-cutoff cells (for_each_near) or by the other searches' queries: all equal to the brute-force
+    gradient of the truncated sum."""
+    rng = np.random.default_rng(5)
+    n, sigma = 300, 0.05
+    x = rng.uniform(-0.2, 0.2, (n, 3))
+    points = rng.uniform(-0.25, 0.25, (500, 3))
+    d = points[:, None, :] - x[None, :, :]
+    r2 = (d**2).sum(-1)
+    w = np.where(r2 < (3.0 * sigma) ** 2, np.exp(-r2 / sigma**2), 0.0)
+    g = (d * w[..., None]).sum(1)
+    expected = g / np.linalg.norm(g, axis=1, keepdims=True)
+    for method in ("grid", "hash_grid", "brute"):
+        bf = ta.BlobField(capacity=n, sigma=sigma, bounds=((-0.3,) * 3, (0.3,) * 3), resolution=32,
+                          neighbor_method=method)  # fmt: skip
+        bf.evaluate(x)
+        np.testing.assert_allclose(bf.outward_normals(points), expected, atol=1e-9, err_msg=method)
+
+
 # ------------------------------------------------------------------------------------------ one blob
 
 

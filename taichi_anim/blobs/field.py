@@ -137,14 +137,17 @@ class BlobField:
             method=neighbor_method,
             make=make,
         )
-        # The surface's vertices query the particles within the cutoff only: a grid of cutoff-sized cells
-        # visits 27 (3 sigma)^3 of them per vertex against 27 (block radius)^3 in the blocks' grid (8x
-        # fewer; the normals of a 54,000-particle liquid's surface took 68 ms with the blocks' grid).
+        # The surface's vertices query the particles within the cutoff only: on the grid, cells of half
+        # the cutoff and 5^3 of them scanned (for_each_near), against 27 (block radius)^3 in the blocks'
+        # grid (the normals of a 54,000-particle liquid's surface took 68 ms with the blocks' grid, 16
+        # with cutoff-sized cells, 8 with half-sized ones).
         rc = self.cutoff_radius
         box = (tuple(lo - rc), tuple(np.asarray(self.hi) + rc))
+        self._vertex_query_near = neighbor_method == "grid"
         self.vertex_neighbors = make_neighbor_search(
-            self.capacity, 0.5 * rc, domain=box, method=neighbor_method, make=make
-        )
+            self.capacity, 0.5 * rc if self._vertex_query_near else rc, domain=box, method=neighbor_method,
+            make=make,
+        )  # fmt: skip
         self._x = None  # staging field for NumPy input, allocated on first use
         self._inv_s2 = 1.0 / self.sigma**2
         v3i = ti.types.vector(3, ti.i32)
@@ -404,7 +407,10 @@ class BlobField:
 
     @ti.func
     def _add_gradient(self, i, k, ret: ti.template()):
-        d = ret.p - self.vertex_neighbors.sorted_x[k]
+        self._add_gradient_at(i, k, ret.p - self.vertex_neighbors.sorted_x[k], ret)
+
+    @ti.func
+    def _add_gradient_at(self, i, k, d, ret: ti.template()):
         ret.g += d * ti.exp(-d.norm_sqr() * self._inv_s2)
 
     @ti.kernel
@@ -412,20 +418,10 @@ class BlobField:
         for v in range(points.shape[0]):
             p = ti.Vector([points[v, 0], points[v, 1], points[v, 2]], dt=float)
             acc = self._Grad(p=p, g=ti.Vector.zero(float, 3))
-            grid = self.vertex_neighbors
-            base = grid.coords(p)
-            dims = grid.dims
-            z0 = ti.max(base[2] - 2, 0)
-            z1 = ti.min(base[2] + 2, dims[2] - 1)
-            r2 = self.cutoff_radius * self.cutoff_radius
-            for q in range(25):
-                cx = base[0] + q // 5 - 2
-                cy = base[1] + q % 5 - 2
-                if 0 <= cx < dims[0] and 0 <= cy < dims[1]:
-                    row = (cx * dims[1] + cy) * dims[2]
-                    for kk in range(grid.cell_start[row + z0], grid.cell_start[row + z1 + 1]):
-                        if (p - grid.sorted_x[kk]).norm_sqr() < r2:
-                            self._add_gradient(v, kk, acc)
+            if ti.static(self._vertex_query_near):
+                self.vertex_neighbors.for_each_near(v, p, self.cutoff_radius, self._add_gradient_at, acc)
+            else:
+                self.vertex_neighbors.for_each_neighbor(v, p, self.cutoff_radius, self._add_gradient, acc)
             # -grad psi = (2 / sigma^2) sum (p - p_i) exp(...): the positive factor drops out on normalising.
             length = acc.g.norm()
             n = ti.Vector.zero(float, 3)

@@ -286,6 +286,27 @@ class NeighborGrid(_NeighborSearch):
                     for k in range(self.cell_start[row + z0], self.cell_start[row + z1 + 1]):
                         self._offer(i, k, p, r2, check, visit, ret)
 
+    @ti.func
+    def for_each_near(self, i, p, radius: ti.template(), visit: ti.template(), ret: ti.template()):
+        """From Taichi scope, for a grid built with cells of at least radius / 2: call
+        visit(i, k, p - sorted_x[k], ret) for every slot k within `radius` [m] of p, scanning the 5 x 5
+        columns of 5 cells around p's cell (a box of 5/2 radius on a side: about 40 % fewer candidates
+        than the 27 cells of radius a for_each_neighbor scans on a grid of cells of radius). `radius`: a
+        Python number (its square is taken in double precision, as the liquid's solver always has)."""
+        base = self.coords(p)
+        z0 = ti.max(base[2] - 2, 0)
+        z1 = ti.min(base[2] + 2, self.dims[2] - 1)
+        r2 = radius * radius
+        for q in range(25):
+            cx = base[0] + q // 5 - 2
+            cy = base[1] + q % 5 - 2
+            if 0 <= cx < self.dims[0] and 0 <= cy < self.dims[1]:
+                row = (cx * self.dims[1] + cy) * self.dims[2]  # cells adjacent in z are adjacent in memory
+                for k in range(self.cell_start[row + z0], self.cell_start[row + z1 + 1]):
+                    d = p - self.sorted_x[k]
+                    if d.norm_sqr() < r2:
+                        visit(i, k, d, ret)
+
 
 def make_neighbor_search(capacity: int, radius: float, *, domain=None, method: str = "auto", make=None):
     """A neighbour structure for up to `capacity` particles and queries up to `radius` [m]; make: the

@@ -295,20 +295,7 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, FluidReport):
     def _near(self, grid: ti.template(), k, p, visit: ti.template(), acc: ti.template()):
         """visit(k, slot, p - x_slot, acc) for every slot of `grid` within the support of p: the 5 x 5
         columns of 5 cells around p's cell (NeighborGrid makes cells at least the half support given)."""
-        base = grid.coords(p)
-        dims = grid.dims
-        z0 = ti.max(base[2] - 2, 0)
-        z1 = ti.min(base[2] + 2, dims[2] - 1)
-        r2 = self.support * self.support
-        for q in range(25):
-            cx = base[0] + q // 5 - 2
-            cy = base[1] + q % 5 - 2
-            if 0 <= cx < dims[0] and 0 <= cy < dims[1]:
-                row = (cx * dims[1] + cy) * dims[2]  # cells adjacent in z are adjacent in memory
-                for kk in range(grid.cell_start[row + z0], grid.cell_start[row + z1 + 1]):
-                    d = p - grid.sorted_x[kk]
-                    if d.norm_sqr() < r2:
-                        visit(k, kk, d, acc)
+        grid.for_each_near(k, p, self.support, visit, acc)
 
     @ti.func
     def _add_fluid(self, k, kk, d, acc: ti.template()):
