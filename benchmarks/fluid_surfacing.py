@@ -6,12 +6,12 @@ Clouds: the `dam_break` demo's column (per_width particles across a, 2a high) at
 of collapse (a splashing surge), f32. Both on a grid of half a spacing (the particle radius, r = d/2):
 ours with sigma = d and iso = the field's half level inside the lattice; splashsurf with its
 documented defaults relative to the radius, smoothing length 2r (SPH support 4r = 2d, as the solver)
-and iso 0.6. Ours gives each vertex its normal from the field's analytic gradient; splashsurf is timed
-twice: the surface alone (`reconstruct_surface`, as the engine's surface without normals would be) and with
-normals from its colour field's SPH gradient (`reconstruction_pipeline(compute_normals=True,
-sph_normals=True)`, the like of ours). Timed after a warm-up call (its compile reported apart), median of
-repeats, both on every core. Quality, by `spatial.mesh_report`: closed, manifold, oriented, no
-self-intersection; the enclosed volume against the particles' volume N d^3; triangles.
+and iso 0.6. Each is timed twice: the surface alone (ours with normals=False; splashsurf's
+`reconstruct_surface`), and with vertex normals from the field's gradient (ours: the analytic gradient of
+the blobs; splashsurf: its colour field's SPH gradient, `reconstruction_pipeline(compute_normals=True,
+sph_normals=True)`). Timed after a first call (its compile reported apart), in alternating rounds (each
+engine once a round), median, all on every core. Quality, by `spatial.mesh_report`: closed, manifold,
+oriented, no self-intersection; the enclosed volume against the particles' volume N d^3; triangles.
 
     .venv/bin/python benchmarks/fluid_surfacing.py [--quick]
 """
@@ -19,7 +19,7 @@ self-intersection; the enclosed volume against the particles' volume N d^3; tria
 import os
 
 import numpy as np
-from harness import Page, clock, fmt_s, init, log, median_time, parse_args
+from harness import Page, clock, fmt_s, init, log, parse_args
 
 import taichi_anim as ta
 from taichi_anim.scenes import make_scene
@@ -45,7 +45,8 @@ def quality(v, f, n: int, d: float) -> dict:
     return dict(ok=bool(ok), volume=float(abs(r.volume) / (n * d**3)), triangles=int(len(f)))
 
 
-def ours(x: np.ndarray, d: float, repeats: int) -> dict:
+def ours(x: np.ndarray, d: float, normals: bool):
+    """(surface(), its mesh's vertices and triangles) for the engine's blobs."""
     lo, hi = x.min(axis=0) - LIQUID_CUTOFF * d, x.max(axis=0) + LIQUID_CUTOFF * d
     resolution = int(np.ceil((hi - lo).max() / (0.5 * d))) + 1  # grid spacing d/2
     bf = ta.BlobField(capacity=len(x), sigma=d, bounds=(lo, hi), resolution=resolution, cutoff=LIQUID_CUTOFF)
@@ -53,16 +54,13 @@ def ours(x: np.ndarray, d: float, repeats: int) -> dict:
 
     def surface():
         bf.evaluate(x)
-        return bf.isosurface(iso)
+        return bf.isosurface(iso, normals=normals)
 
-    a = clock()
-    mesh = surface()
-    first = clock() - a
-    t = median_time(surface, repeats=repeats, warmup=0)
-    return dict(seconds=t, first=first, **quality(mesh.vertices, mesh.triangles, len(x), d))
+    return surface, lambda m: (m.vertices, m.triangles)
 
 
-def splashsurf(x: np.ndarray, d: float, repeats: int, normals: bool) -> dict:
+def splashsurf(x: np.ndarray, d: float, normals: bool):
+    """(surface(), its mesh's vertices and triangles) for splashsurf."""
     import pysplashsurf
 
     # pysplashsurf 0.14 takes smoothing_length and cube_size in particle radii, although its docstring
@@ -79,33 +77,54 @@ def splashsurf(x: np.ndarray, d: float, repeats: int, normals: bool) -> dict:
             return mesh.mesh
         return pysplashsurf.reconstruct_surface(x32, **settings).mesh
 
-    a = clock()
-    mesh = surface()
-    first = clock() - a
-    t = median_time(surface, repeats=repeats, warmup=0, sync=clock)
-    v, f = np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.triangles, dtype=np.int64)
-    return dict(seconds=t, first=first, **quality(v, f, len(x), d))
+    return surface, lambda m: (
+        np.asarray(m.vertices, dtype=np.float64),
+        np.asarray(m.triangles, dtype=np.int64),
+    )
+
+
+def alternating(engines: dict, x: np.ndarray, d: float, rounds: int) -> dict:
+    """Per engine: the first call (compile included), then `rounds` rounds that time every engine once in
+    turn (so a slow phase of the machine falls on all of them), the median, and the mesh's quality."""
+    out = {}
+    for name, (surface, arrays) in engines.items():
+        a = clock()
+        mesh = surface()
+        out[name] = dict(first=clock() - a, times=[], **quality(*arrays(mesh), len(x), d))
+    for _ in range(rounds):
+        for name, (surface, _) in engines.items():
+            a = clock()
+            surface()
+            out[name]["times"].append(clock() - a)
+    for r in out.values():
+        r["seconds"] = float(np.median(r.pop("times")))
+    return out
 
 
 def main(argv=None) -> None:
     args = parse_args(__doc__, argv)
-    sizes, repeats = ((10,), 3) if args.quick else ((10, 20, 30), 5)
+    sizes, rounds = ((10,), 3) if args.quick else ((10, 20, 30), 9)
     init("f32")
     rows, data = [], []
     for per_width in sizes:
         for name, x, d in clouds(per_width, 0.4):
             log(f"{name}: {len(x)} particles")
-            a = ours(x, d, repeats)
-            b, c = splashsurf(x, d, repeats, False), splashsurf(x, d, repeats, True)
-            for engine, r in (("taichi_anim blobs, normals", a), ("splashsurf 0.14, surface only", b),
-                              ("splashsurf 0.14, SPH normals", c)):  # fmt: skip
+            engines = {
+                "taichi_anim blobs, surface only": ours(x, d, False),
+                "splashsurf 0.14, surface only": splashsurf(x, d, False),
+                "taichi_anim blobs, normals": ours(x, d, True),
+                "splashsurf 0.14, SPH normals": splashsurf(x, d, True),
+            }
+            res = alternating(engines, x, d, rounds)
+            for engine, r in res.items():
                 rows.append([name, len(x), engine, fmt_s(r["seconds"]), f"{len(x) / r['seconds']:.3g}",
                              r["triangles"], "ok" if r["ok"] else "**failed**", f"{r['volume']:.3f}",
                              fmt_s(r["first"])])  # fmt: skip
                 log(" | ".join(map(str, rows[-1])))
-            data.append(dict(cloud=name, particles=len(x), spacing=d, ours=a, splashsurf=b,
-                             splashsurf_normals=c, speed_ratio=b["seconds"] / a["seconds"],
-                             speed_ratio_normals=c["seconds"] / a["seconds"]))  # fmt: skip
+            a, b, an, bn = res.values()
+            data.append(dict(cloud=name, particles=len(x), spacing=d, ours=a, splashsurf=b, ours_normals=an,
+                             splashsurf_normals=bn, speed_ratio=b["seconds"] / a["seconds"],
+                             speed_ratio_normals=bn["seconds"] / an["seconds"]))  # fmt: skip
     page = Page(
         "fluid_surfacing",
         "Surfacing a liquid: blobs against splashsurf",
@@ -117,7 +136,8 @@ def main(argv=None) -> None:
          "splashsurf": "smoothing length 2r (support 2d), cube r, iso 0.6, rest density 1000, "
                        "multi-threaded; surface only: reconstruct_surface; SPH normals: "
                        "reconstruction_pipeline(compute_normals, sph_normals)",
-         "threads": os.cpu_count(), "repeats": f"median of {repeats} after the first call"},
+         "threads": os.cpu_count(),
+         "repeats": f"median of {rounds} alternating rounds (each engine once a round) after the first call"},
     )  # fmt: skip
     page.table(
         "Per surface",

@@ -191,7 +191,7 @@ def check_closed_and_oriented(v, f, normals, field=None) -> None:
 
 
 @pytest.mark.parametrize("method", METHODS)
-def test_blob_cloud_mesh_is_closed_manifold_and_consistently_oriented(method):
+def test_blob_cloud_mesh_is_closed_manifold_and_consistently_oriented(method, tmp_path):
     needs(method)
     rng = np.random.default_rng(3)
     x = np.concatenate([rng.normal((-0.1, 0, 0), 0.05, (12, 3)), rng.normal((0.12, 0.02, 0), 0.04, (8, 3))])
@@ -203,6 +203,11 @@ def test_blob_cloud_mesh_is_closed_manifold_and_consistently_oriented(method):
     mesh = bf.isosurface(0.3, method=method)
     assert mesh.triangle_count > 500
     check_closed_and_oriented(mesh.vertices, mesh.triangles, mesh.normals, bf)
+    # Without normals: the same surface, wound the same way (its winding decided by a sample's normals).
+    bare = bf.isosurface(0.3, method=method, normals=False)
+    assert bare.normals is None
+    assert np.array_equal(bare.vertices, mesh.vertices) and np.array_equal(bare.triangles, mesh.triangles)
+    assert "vertex_normals" not in read_triangle_mesh(bare.write(tmp_path / "bare.ply"))
 
 
 @pytest.mark.parametrize("method", METHODS_FAST)

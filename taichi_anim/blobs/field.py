@@ -397,11 +397,11 @@ class BlobField:
         centre = self.node_position(base[0], base[1], base[2]) + 0.5 * (BLOCK - 1) * self.spacing
         self.neighbors.for_each_neighbor(b, centre, self.block_radius, self._splat, acc)
 
-    def isosurface(self, iso: float = 0.5, *, method=None) -> BlobMesh:
+    def isosurface(self, iso: float = 0.5, *, method=None, normals: bool = True) -> BlobMesh:
         """The closed surface psi = iso of the last evaluation as a BlobMesh (vertices [m], triangles,
-        outward normals). One blob alone gives a sphere of radius sigma * sqrt(ln(1 / iso)).
-        method: "open3d" (default), "skimage" or "taichi" (see isosurface.py)."""
-        return extract(self, iso, DEFAULT_METHOD if method is None else method)
+        outward normals, or None with normals=False). One blob alone gives a sphere of radius
+        sigma * sqrt(ln(1 / iso)). method: "open3d" (default), "skimage" or "taichi" (see isosurface.py)."""
+        return extract(self, iso, DEFAULT_METHOD if method is None else method, normals)
 
     # --------------------------------------------------------------------------------------- read back
 
