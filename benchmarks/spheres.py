@@ -161,6 +161,7 @@ def main(argv=None) -> None:
                 ratio(warp_r and warp_r["median"], res["taichi_anim"]["median"]),
                 f"{rate['brute force']:.3g}" if "brute force" in rate else "–",
                 f"{rebuild:.0%}",
+                f"{res['taichi_anim']['cores']:.2f} / {warp_r['cores']:.2f}" if warp_r else "–",
                 pile(res_of(runs, "taichi_anim"), share["overlap"]()),
                 pile(runs[-1].result, warp_overlap[0]()) if ws else "–",
             ]
@@ -190,10 +191,12 @@ def main(argv=None) -> None:
             "speed-up",
             "brute force",
             "rebuild share",
+            "cores busy (ours / warp)",
             "ours: kinetic energy, worst overlap",
             "warp: same",
         ],
         rows,
+        "cores busy: CPU time over wall time while the frames are timed.",
     )
     page.write(data)
 
