@@ -370,10 +370,12 @@ class BlobField:
             self.active_box[1] = box_hi
 
     @ti.func
-    def _gather_blocks(self):
-        # On the CPU the workers claim blocks one by one: Taichi 1.7 hands a CPU loop out in pieces of at
-        # least 512 iterations, so a loop over a few hundred heavy blocks ran on one thread, and over 766
-        # (a 16,000-particle surge) split 512 / 254. Each block's sums are the same whoever runs it.
+    def for_each_block(self, body: ti.template()):
+        """body(s) for every flagged block s = 0 ... active_count - 1 (call at a kernel's top level: its
+        loops are passes of that launch). On the CPU the workers claim blocks one by one: Taichi 1.7
+        hands a CPU loop out in pieces of at least 512 iterations, so a loop over a few hundred heavy
+        blocks ran on one thread, and over 766 (a 16,000-particle surge) split 512 / 254. A block's
+        results must not depend on who runs it."""
         if ti.static(self._claimed):
             ti.loop_config(serialize=True)
             for _ in range(1):
@@ -382,11 +384,15 @@ class BlobField:
                 if workers.is_worker(task):
                     s = workers.claim(self.block_claim, 0)
                     while s < self.active_count[None]:
-                        self._gather_block(s)
+                        body(s)
                         s = workers.claim(self.block_claim, 0)
         else:
             for s in range(self.active_count[None]):
-                self._gather_block(s)
+                body(s)
+
+    @ti.func
+    def _gather_blocks(self):
+        self.for_each_block(self._gather_block)
 
     @ti.func
     def _gather_block(self, s):
