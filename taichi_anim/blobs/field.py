@@ -54,12 +54,13 @@ WORKER_GATHER = None
 class BlobField:
     """psi on a grid of nodes lo + spacing * (i, j, k) spanning `bounds`.
 
-    capacity: most particles per evaluation; sigma [m]: blob width (one blob alone has
-    psi = exp(-r^2 / sigma^2)); bounds: (lo, hi) [m] of the grid; resolution: nodes along the longest
-    side of bounds (the others get the same spacing); cutoff: r_c / sigma (default 3: truncation error
-    below exp(-9) = 1.2e-4 per particle); neighbor_method: see `make_neighbor_search` (default "grid":
-    every visited block and every mesh vertex is a query, many more than particles, so the grid pays
-    for its build at any particle count, unlike particle-particle searches).
+    capacity: most particles per evaluation (each keeps its axis profiles, 6 x profile_width floats,
+    profile_width = floor(2 r_c / spacing) + 2: 12 for a liquid's blobs); sigma [m]: blob width (one blob
+    alone has psi = exp(-r^2 / sigma^2)); bounds: (lo, hi) [m] of the grid; resolution: nodes along the
+    longest side of bounds (the others get the same spacing); cutoff: r_c / sigma (default 3: truncation
+    error below exp(-9) = 1.2e-4 per particle); neighbor_method: see `make_neighbor_search` (default "grid":
+    every visited block and every mesh vertex is a query, many more than particles, so the grid pays for its
+    build at any particle count, unlike particle-particle searches).
     Fields: psi, the node values flat, block by block over the grid padded to whole blocks
     (`value(node)` reads one from Taichi scope, `values()` gives the (nx, ny, nz) array).
     """

@@ -292,7 +292,9 @@ class NeighborGrid(_NeighborSearch):
         visit(i, k, p - sorted_x[k], ret) for every slot k within `radius` [m] of p, scanning the 5 x 5
         columns of 5 cells around p's cell (a box of 5/2 radius on a side: about 40 % fewer candidates
         than the 27 cells of radius a for_each_neighbor scans on a grid of cells of radius). `radius`: a
-        Python number (its square is taken in double precision, as the liquid's solver always has)."""
+        Python number (its square is taken in double precision, as the liquid's solver always has).
+        A bounded grid only (the hashed one's buckets are not laid out by column)."""
+        ti.static_assert(not self.hashed, "for_each_near needs a bounded grid")
         base = self.coords(p)
         z0 = ti.max(base[2] - 2, 0)
         z1 = ti.min(base[2] + 2, self.dims[2] - 1)
