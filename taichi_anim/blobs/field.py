@@ -228,7 +228,13 @@ class BlobField:
         (each block's BLOCK^3 values contiguous, z fastest), so two threads working on neighbouring
         blocks never write the same cache line."""
         q = node % BLOCK
-        return self.block_of(node) * BLOCK3 + (q[0] * BLOCK + q[1]) * BLOCK + q[2]
+        return self.row_index(self.block_of(node), q[0], q[1]) + q[2]
+
+    @ti.func
+    def row_index(self, b, i, j):
+        """Index in `psi` of block b's node (i, j, 0) (coordinates within the block): the first of the
+        row of BLOCK values along z."""
+        return b * BLOCK3 + (i * BLOCK + j) * BLOCK
 
     @ti.func
     def value(self, node):
@@ -290,7 +296,7 @@ class BlobField:
                     qij = q[0, i] + q[1, j]
                     if qij < rc2:
                         eij = e[0, i] * e[1, j]
-                        row = b * BLOCK3 + (i * BLOCK + j) * BLOCK
+                        row = self.row_index(b, i, j)
                         for m in ti.static(range(BLOCK)):
                             w = eij * e[2, m]
                             if qij + q[2, m] >= rc2:
@@ -330,7 +336,7 @@ class BlobField:
         # Clear what the previous evaluation wrote (its blocks only, not the whole grid).
         rows = BLOCK * BLOCK
         for j in range(self.active_count[None] * rows):
-            row = self.active_block[j // rows] * BLOCK3 + (j % rows) * BLOCK
+            row = self.row_index(self.active_block[j // rows], (j % rows) // BLOCK, j % BLOCK)
             for m in ti.static(range(BLOCK)):  # a row along z: BLOCK adjacent values
                 self.psi[row + m] = 0.0
         for s in range(self.active_count[None]):
@@ -461,7 +467,7 @@ class BlobField:
             i = node[0] - o0
             j = node[1] - o1
             if 0 <= i < out.shape[0] and 0 <= j < out.shape[1]:
-                src = b * BLOCK3 + (r % rows) * BLOCK
+                src = self.row_index(b, (r % rows) // BLOCK, r % BLOCK)
                 for m in ti.static(range(BLOCK)):
                     k = node[2] + m - o2
                     if 0 <= k < out.shape[2]:
