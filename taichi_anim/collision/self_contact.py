@@ -31,7 +31,8 @@ positions x0 (intersection-free) and its end positions x1:
    impact zones, translation only). A common shift leaves every pair inside the group as safe as it was;
    pairs to the outside are re-checked, and a vertex the shift carries past its reach has its pairs
    looked for again from there (a second round). Only the last resort (every vertex held, after
-   HOLD_PASSES) and a group with a pinned vertex do not keep momentum.
+   HOLD_PASSES), a group with a pinned vertex and one the shift would carry into a collider (pressed
+   against it: the collider takes the momentum) do not keep momentum.
 
 Candidate pairs come from a box structure over the triangles at x0 (a BVH, spatial/), refit every step
 (an edge's candidates are the edges owned by the triangles its box meets: owned_edges), each primitive's
@@ -320,15 +321,15 @@ class SelfContact(ProximitySweeps, DisplacementGuard):
         if self.count[0] + self.count[1] > 0:  # one read: most steps of a falling cloth have no pairs
             self._proximity(model, state, state.time + h)
         if not self.guard:
-            self._finish(model, state, h, True)
+            self._finish(model, state, h, state.time + h, True)
             return
-        self._finish(model, state, h, False)
+        self._finish(model, state, h, state.time + h, False)
         if self.count[8] > 0:
             # A group's common motion (or a proximity sweep) carried a vertex past its reach, beyond the
             # pairs looked at: look again from these positions (reaches grown to their displacements),
             # and guard them once more (then a vertex past its reach is held where its bound says).
             self._find_pairs(model, state)
-            self._finish(model, state, h, True)
+            self._finish(model, state, h, state.time + h, True)
 
     def _find_pairs(self, model, state) -> None:
         """Candidate pairs, their distances at x0 and the bounds, for the positions the state holds."""

@@ -133,12 +133,22 @@ class DisplacementGuard:
         return step
 
     @ti.func
-    def _place(self, model: ti.template(), state: ti.template()):
+    def _in_collider(self, model: ti.template(), v, x, t):
+        """Whether local vertex v at x overlaps a collider at time t [s] (closer than its radius: where
+        the colliders' projection would move it)."""
+        nearest = ti.cast(1e30, float)
+        for c in ti.static(model.colliders):
+            nearest = ti.min(nearest, c.sdf(x, t))
+        return nearest < model.radius(self.vertex[v])
+
+    @ti.func
+    def _place(self, model: ti.template(), state: ti.template(), t):
         """Held vertices, from the guard's input positions: each moved back to within its bound of x0,
         then every vertex of its group shifted by the group's momentum deficit over its mass, so the
         group keeps its momentum (a perfectly inelastic contact: the group's mass-weighted common
         motion). The shift is common to the group, so every pair inside it stays safe; a group with a
-        pinned or anchored vertex (external: it takes the momentum) is not shifted."""
+        pinned or anchored vertex, or one the shift would carry into a collider (external: it takes the
+        momentum), is not shifted. t [s]: the step's end, for the colliders."""
         for v in range(self.verts()):
             self.g_mass[v] = 0.0
             self.g_deficit[v] = ti.Vector.zero(float, 3)
@@ -155,6 +165,17 @@ class DisplacementGuard:
                     self.g_deficit[r] += (self._held_step(v) - (self.x_in[v] - self.x0[v])) / w
                 else:
                     self.g_fixed[r] = 1
+        if ti.static(model.collider_count > 0):
+            # A group whose common motion would carry a vertex into a collider is pressed against it: the
+            # collider takes the momentum (as a pinned vertex's does), and the group is not shifted. Nothing
+            # moves a vertex after the guard, so a shift into a collider would end the step there, and the
+            # next step's projection would push it out into the cloth above it.
+            for v in range(self.verts()):
+                r = self.g_root[v]
+                if self.hold[v] and self.g_fixed[r] == 0 and self.g_mass[r] > 0.0:
+                    x = self.x0[v] + self._held_step(v) - self.g_deficit[r] / self.g_mass[r]
+                    if self._in_collider(model, v, x, t):
+                        self.g_fixed[r] = 1
         for v in range(self.verts()):
             i = self.vertex[v]
             if self.hold[v] and model.inv_mass(i) > 0.0:
@@ -187,16 +208,16 @@ class DisplacementGuard:
     # here (it has about twenty), and the hold passes then run as a loop instead of unrolled copies.
     @compile_with(cfg_optimization=False)
     @ti.kernel
-    def _finish(self, model: ti.template(), state: ti.template(), h: float, final: ti.template()):
+    def _finish(self, model: ti.template(), state: ti.template(), h: float, t: float, final: ti.template()):
         if ti.static(self.serial_guard):
             ti.loop_config(serialize=True)
             for _ in range(1):
-                self._finish_all(model, state, h, final)
+                self._finish_all(model, state, h, t, final)
         else:
-            self._finish_all(model, state, h, final)
+            self._finish_all(model, state, h, t, final)
 
     @ti.func
-    def _hold_passes(self, model: ti.template(), state: ti.template(), final: ti.template()):
+    def _hold_passes(self, model: ti.template(), state: ti.template(), t, final: ti.template()):
         """HOLD_PASSES passes that hold the vertices of pairs that could have met, then the count of those
         left (count[7]). Serial: one loop over the passes and the count, so that the kernel holds one
         copy of _violations (marking or not is a run-time flag)."""
@@ -205,16 +226,16 @@ class DisplacementGuard:
                 self._violations(model, state, p < HOLD_PASSES, final)
                 if p < HOLD_PASSES:
                     self._join_groups()
-                    self._place(model, state)
+                    self._place(model, state, t)
         else:
             for _pass in ti.static(range(HOLD_PASSES)):
                 self._violations(model, state, True, final)
                 self._join_groups()
-                self._place(model, state)
+                self._place(model, state, t)
             self._violations(model, state, False, final)
 
     @ti.func
-    def _finish_all(self, model: ti.template(), state: ti.template(), h, final: ti.template()):
+    def _finish_all(self, model: ti.template(), state: ti.template(), h, t, final: ti.template()):
         for v in range(self.verts()):
             self.hold[v] = 0
             self.anchor[v] = 0
@@ -229,7 +250,7 @@ class DisplacementGuard:
         # (a group's motion can make a pair to its outside fast), and after HOLD_PASSES hold every
         # vertex within its bound: all held, every pair is safe (gamma < 1/2).
         if ti.static(self.guard):
-            self._hold_passes(model, state, final)
+            self._hold_passes(model, state, t, final)
             if self.count[7] > 0:
                 self.count[6] += 1
             self._clamp_all(model, state)
