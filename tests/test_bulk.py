@@ -34,7 +34,8 @@ def test_one_launch_writes_what_from_numpy_writes():
 
 def test_one_launch_reads_what_to_numpy_reads(monkeypatch):
     """Scalars, vectors and matrices of floats and ints, read over their first rows in one launch: the
-    same values and types as to_numpy, with the requested shapes; no row and too many rows."""
+    same values and types as to_numpy, with the requested shapes; floats alone; no row and too many
+    rows."""
     rng = np.random.default_rng(1)
     fields = []
     for dims, dtype in [((), float), ((3,), float), ((3, 3), float), ((), ti.i32), ((4,), float)]:
@@ -53,6 +54,13 @@ def test_one_launch_reads_what_to_numpy_reads(monkeypatch):
         assert a.dtype == expected.dtype and a.shape == expected.shape
         np.testing.assert_array_equal(a, expected)
     assert [a.shape for a in bulk.read(fields[:2], 0)] == [(0,), (0, 3)] and len(launches) == 1
+    # Floats only: the launch with one array argument, the same values.
+    floats_only = [fields[i] for i in (0, 1, 2, 4)]
+    kernel_floats = bulk._read_floats_kernel
+    monkeypatch.setattr(bulk, "_read_floats_kernel", lambda *a: launches.append(2) or kernel_floats(*a))
+    for f, a in zip(floats_only, bulk.read(floats_only, 6), strict=True):
+        np.testing.assert_array_equal(a, f.to_numpy()[:6])
+    assert launches == [1, 2]
     with pytest.raises(ValueError, match=r"8 rows of a field of shape \(7,\)"):
         bulk.read(fields, 8)
 
