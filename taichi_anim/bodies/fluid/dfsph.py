@@ -45,11 +45,12 @@ from ..rigid.quaternion import quat_matrix, world_inverse_inertia
 from . import surface_tension
 from .bodies import BodySamples, sphere_particles
 from .boundary import boundary_samples
-from .pressure import ERROR_SCALE, PressureSolves
+from .pressure import ERROR_SCALE, PressureSolves, first_sum_above
 from .report import FluidReport
 from .serial_substep import SerialSubstep
 from .sph_kernel import cubic_w, cubic_w_grad, lattice_sum
 from .worker_solve import WorkerSolve
+from .worker_substep import WorkerSubstep
 
 FLUID_NEIGHBORS = 64  # listed fluid neighbours per particle (26 at rest; a compressed splash ~45)
 BODY_NEIGHBORS = 64  # listed samples of rigid bodies per particle (~13 at a face, ~40 at a corner)
@@ -60,7 +61,7 @@ FLUID_SERIAL_BELOW = 3000
 
 
 @data_oriented
-class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, FluidReport):
+class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, WorkerSubstep, FluidReport):
     """The liquid's pressure solver (module docstring); built by the Stepper from `model.fluid`."""
 
     name = "fluid"
@@ -151,6 +152,9 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, FluidReport):
             self.body_n = f("fluid_body_n", ti.i32)
             self.body_nbr = f("fluid_body_nbr", ti.i32, shape=(n, BODY_NEIGHBORS))
             self.body_grad = f("fluid_body_grad", dims=(3,), shape=(n, BODY_NEIGHBORS))
+        # Nozzles (add_fluid_emitter) give liquid particles birth times: the solves run over the live ones.
+        self.emitted = model.emitter_count > 0
+        self._make_worker_substep()
         self._make_worker_solve(make)
         self.err_sum = f("fluid_err_sum", ti.i64, shape=())
         self.err_max = f("fluid_err_max", shape=())
@@ -163,8 +167,6 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, FluidReport):
         self.speed = f("fluid_speed", shape=())
         if self.surface_tension > 0.0:
             self.normal = f("fluid_normal", dims=(3,))  # surface_tension.py's n_k, by slot
-        # Nozzles (add_fluid_emitter) give liquid particles birth times: the solves run over the live ones.
-        self.emitted = model.emitter_count > 0
         if self.emitted:
             self.cdeath = f("fluid_cdeath")
         if self.serial and self.emitted:  # the solves' thresholds per live count (serial_substep.py)
@@ -192,6 +194,14 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, FluidReport):
 
     def before_substep(self, model, state, h: float) -> None:
         """Neighbourhoods, densities and factors at the substep's start; the divergence solve."""
+        if self.worker_substep:  # the whole substep on the CPU's workers (worker_substep.py)
+            n = model.fluid_count
+            it, total, _ = (int(c) for c in self._begin_by_workers(
+                state, model, n, float(state.time), h, first_sum_above(self.divergence_tolerance, n),
+                min(self.min_iterations, 1), self.max_iterations,
+            ))  # fmt: skip
+            self.last = dict(divergence_iterations=it, divergence_error=total / ERROR_SCALE / n)
+            return
         if self._two_launch_substep():  # a small liquid: one launch (serial_substep.py)
             above = self._thresholds(model, self.divergence_tolerance)
             it, total, n = (int(c) for c in self._begin_serially(
@@ -215,7 +225,14 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, FluidReport):
 
     def after_substep(self, model, state, h: float, step: int) -> None:
         """XSPH, the density solve, then positions from the corrected velocities."""
-        if self._two_launch_substep():  # a small liquid: one launch (serial_substep.py)
+        if self.worker_substep:  # the whole substep on the CPU's workers (worker_substep.py)
+            counts, worst = self._end_by_workers(
+                state, model, h, float(state.time + h), self.viscosity,
+                first_sum_above(self.tolerance, model.fluid_count), self.min_iterations, self.max_iterations,
+            )  # fmt: skip
+            iterations, total, n = (int(c) for c in counts)
+            mean, worst = total / ERROR_SCALE / n, float(worst)
+        elif self._two_launch_substep():  # a small liquid: one launch (serial_substep.py)
             counts, worst = self._end_serially(
                 state, model, h, float(state.time + h), self.viscosity, self.surface_tension,
                 self._thresholds(model, self.tolerance), self.min_iterations, self.max_iterations,
@@ -250,7 +267,15 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, FluidReport):
             viscosity=self.viscosity, surface_tension=self.surface_tension, cfl=self.cfl,
             max_step=self.max_step, max_substeps=self.max_substeps,
             boundary_particles=self.boundary_count, neighbor_search=self.grid.settings(),
+            substep=self._substep_kind(),
         )  # fmt: skip
+
+    def _substep_kind(self) -> str:
+        """How a substep runs: "workers" (worker_substep.py), "serial" (two serial launches,
+        serial_substep.py) or "launches" (a launch per pass, the solves on workers where they run)."""
+        if self.worker_substep:
+            return "workers"
+        return "serial" if self._two_launch_substep() else "launches"
 
     @ti.func
     def _live(self):
@@ -286,10 +311,14 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, FluidReport):
     def _gather_positions_pass(self, state: ti.template(), model: ti.template()):
         ti.loop_config(serialize=self.serial)
         for j in range(model.live_fluid()):
-            p = model.fluid_particle[j]
-            self.cx[j] = state.particle_x[p]
-            if ti.static(self.emitted):
-                self.cdeath[j] = state.particle_death[p]
+            self._gather_position_one(state, model, j)
+
+    @ti.func
+    def _gather_position_one(self, state: ti.template(), model: ti.template(), j):
+        p = model.fluid_particle[j]
+        self.cx[j] = state.particle_x[p]
+        if ti.static(self.emitted):
+            self.cdeath[j] = state.particle_death[p]
 
     @ti.func
     def _near(self, grid: ti.template(), k, p, visit: ti.template(), acc: ti.template()):
@@ -389,37 +418,47 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, FluidReport):
             self.reached_sum[None] = 0
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
-            xi = self.grid.sorted_x[k]
-            zero = ti.Vector.zero(float, 3)
-            rho = self.mass * cubic_w(0.0, self.support)
-            acc = self._sums(n=0, bn=0, mb=0, rho=rho, g=zero, sq=0.0, wg=zero)
-            self._near(self.grid, k, xi, self._add_fluid, acc)
-            if ti.static(self.walls):
-                if self.wall_near[self.boundary.key(self.boundary.coords(xi))]:
-                    self._near(self.boundary, k, xi, self._add_boundary, acc)
-            if ti.static(self.coupled):
-                self._near(self.body_grid, k, xi, self._add_body, acc)
-                self.body_n[k] = acc.mb
-            self.nn[k] = ti.min(acc.n, FLUID_NEIGHBORS)
-            self.bn[k] = acc.bn + acc.mb  # every boundary sample, the walls' and the bodies'
-            self.wall_grad[k] = acc.wg
-            grad_sum = acc.g + acc.wg
-            den = grad_sum.dot(grad_sum) + acc.sq
-            self.rho[k] = acc.rho
-            self.alpha[k] = 1.0 / den if den > 0.0 else 0.0
-            self.sv[k] = state.particle_v[model.fluid_particle[self.grid.sorted_id[k]]]
-            e = ti.max(acc.rho / self.rest_density - 1.0, 0.0)
-            ti.atomic_add(self.reached_sum[None], ti.cast(e * ERROR_SCALE + 0.5, ti.i64))
-            ti.atomic_max(self.reached[None][1], e)
+            self._neighborhood_one(state, model, k)
         ti.loop_config(serialize=True)
         for _ in range(1):
-            n = self._live()
-            if n > 0:
-                mean = ti.cast(self.reached_sum[None], float) / ERROR_SCALE / n
-                r = self.reached[None]
-                self.reached[None][0] = ti.max(r[0], mean)
-                self.reached[None][2] = ti.max(r[2], mean)
-                self.reached[None][3] = ti.max(r[3], r[1])
+            self._reached_mean()
+
+    @ti.func
+    def _neighborhood_one(self, state: ti.template(), model: ti.template(), k):
+        """Slot k's neighbour list, density, factor alpha and velocity; its density error summed."""
+        xi = self.grid.sorted_x[k]
+        zero = ti.Vector.zero(float, 3)
+        rho = self.mass * cubic_w(0.0, self.support)
+        acc = self._sums(n=0, bn=0, mb=0, rho=rho, g=zero, sq=0.0, wg=zero)
+        self._near(self.grid, k, xi, self._add_fluid, acc)
+        if ti.static(self.walls):
+            if self.wall_near[self.boundary.key(self.boundary.coords(xi))]:
+                self._near(self.boundary, k, xi, self._add_boundary, acc)
+        if ti.static(self.coupled):
+            self._near(self.body_grid, k, xi, self._add_body, acc)
+            self.body_n[k] = acc.mb
+        self.nn[k] = ti.min(acc.n, FLUID_NEIGHBORS)
+        self.bn[k] = acc.bn + acc.mb  # every boundary sample, the walls' and the bodies'
+        self.wall_grad[k] = acc.wg
+        grad_sum = acc.g + acc.wg
+        den = grad_sum.dot(grad_sum) + acc.sq
+        self.rho[k] = acc.rho
+        self.alpha[k] = 1.0 / den if den > 0.0 else 0.0
+        self.sv[k] = state.particle_v[model.fluid_particle[self.grid.sorted_id[k]]]
+        e = ti.max(acc.rho / self.rest_density - 1.0, 0.0)
+        ti.atomic_add(self.reached_sum[None], ti.cast(e * ERROR_SCALE + 0.5, ti.i64))
+        ti.atomic_max(self.reached[None][1], e)
+
+    @ti.func
+    def _reached_mean(self):
+        """After the neighbourhoods: the mean density error they reached, into the frame's and run's."""
+        n = self._live()
+        if n > 0:
+            mean = ti.cast(self.reached_sum[None], float) / ERROR_SCALE / n
+            r = self.reached[None]
+            self.reached[None][0] = ti.max(r[0], mean)
+            self.reached[None][2] = ti.max(r[2], mean)
+            self.reached[None][3] = ti.max(r[3], r[1])
 
     @ti.kernel
     def _write_velocities(self, state: ti.template(), model: ti.template(), h: float):
@@ -429,9 +468,13 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, FluidReport):
     def _write_velocities_pass(self, state: ti.template(), model: ti.template(), h):
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
-            j = self.grid.sorted_id[k]
-            state.particle_v[model.fluid_particle[j]] = self.sv[k]
-            state.fluid_kappa_v[j] = self.kacc[k] * h
+            self._write_velocity_one(state, model, k, h)
+
+    @ti.func
+    def _write_velocity_one(self, state: ti.template(), model: ti.template(), k, h):
+        j = self.grid.sorted_id[k]
+        state.particle_v[model.fluid_particle[j]] = self.sv[k]
+        state.fluid_kappa_v[j] = self.kacc[k] * h
 
     @ti.kernel
     def _gather_velocities(self, state: ti.template(), model: ti.template(), c: float):
@@ -443,15 +486,23 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, FluidReport):
         v_i += c sum_j (2 m / (rho_i + rho_j)) (v_j - v_i) W_ij, equal and opposite in every pair."""
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
-            self.sv2[k] = state.particle_v[model.fluid_particle[self.grid.sorted_id[k]]]
+            self._copy_velocity_one(state, model, k)
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
-            vi, rho = self.sv2[k], self.rho[k]
-            dv = ti.Vector.zero(float, 3)
-            for m in range(self.nn[k]):
-                kk = self.nbr[k, m]
-                dv += (self.sv2[kk] - vi) * (2.0 * self.weight[k, m] / (rho + self.rho[kk]))
-            self.sv[k] = vi + c * self.mass * dv
+            self._xsph_one(k, c)
+
+    @ti.func
+    def _copy_velocity_one(self, state: ti.template(), model: ti.template(), k):
+        self.sv2[k] = state.particle_v[model.fluid_particle[self.grid.sorted_id[k]]]
+
+    @ti.func
+    def _xsph_one(self, k, c):
+        vi, rho = self.sv2[k], self.rho[k]
+        dv = ti.Vector.zero(float, 3)
+        for m in range(self.nn[k]):
+            kk = self.nbr[k, m]
+            dv += (self.sv2[kk] - vi) * (2.0 * self.weight[k, m] / (rho + self.rho[kk]))
+        self.sv[k] = vi + c * self.mass * dv
 
     @ti.kernel
     def _surface_tension(self, h: float, gamma: float):
@@ -489,24 +540,28 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, FluidReport):
         the liquid's volume ends); write back; record p and rho."""
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
-            j = self.grid.sorted_id[k]
-            p = model.fluid_particle[j]
-            v = self.sv[k]
-            x = self.grid.sorted_x[k] + h * v
-            for c in ti.static(model.colliders):
-                d, n, vs = c.contact(x, t)
-                if d < 0.5 * self.spacing:
-                    x += (0.5 * self.spacing - d) * n
-                    vn = (v - vs).dot(n)
-                    if vn < 0.0:
-                        v -= vn * n
-            if ti.static(self.coupled and model.rigid_count > 0):
-                x = self._outside_bodies(model, state, x)
-            state.particle_x[p] = x
-            state.particle_v[p] = v
-            state.fluid_kappa[j] = self.kacc[k] * h * h
-            state.fluid_density[j] = self.rho[k]
-            state.fluid_pressure[j] = self.kacc[k] * self.rho[k] * self.rho[k]
+            self._finish_one(state, model, k, h, t)
+
+    @ti.func
+    def _finish_one(self, state: ti.template(), model: ti.template(), k, h, t):
+        j = self.grid.sorted_id[k]
+        p = model.fluid_particle[j]
+        v = self.sv[k]
+        x = self.grid.sorted_x[k] + h * v
+        for c in ti.static(model.colliders):
+            d, n, vs = c.contact(x, t)
+            if d < 0.5 * self.spacing:
+                x += (0.5 * self.spacing - d) * n
+                vn = (v - vs).dot(n)
+                if vn < 0.0:
+                    v -= vn * n
+        if ti.static(self.coupled and model.rigid_count > 0):
+            x = self._outside_bodies(model, state, x)
+        state.particle_x[p] = x
+        state.particle_v[p] = v
+        state.fluid_kappa[j] = self.kacc[k] * h * h
+        state.fluid_density[j] = self.rho[k]
+        state.fluid_pressure[j] = self.kacc[k] * self.rho[k] * self.rho[k]
 
     # Run once per liquid: compiled without Taichi's CFG passes and advanced optimisation (the pour demo's
     # cold start 0.41 -> 0.32 s, medians of 3; its volumes moved by round-off, 2 ulp of f32).

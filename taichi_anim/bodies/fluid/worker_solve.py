@@ -37,8 +37,8 @@ class WorkerSolve:
         passes = 3 * self.max_iterations + 4  # DFSPH needs 2 a prediction, PBF 3 (pbf.py)
         on_cpu = runtime.backend_name() == "cpu"
         wanted = workers.available() if WORKER_SOLVE is None else WORKER_SOLVE and on_cpu
-        self.workers = not self.serial and wanted
-        if not self.workers:
+        self.workers = not self.serial and wanted and not self.worker_substep
+        if not (self.workers or self.worker_substep):  # the substep's solves run on these counters too
             return
         self.worker_items, self.chunks = workers.loop_size(), workers.chunks()
         self.pass_claim = make(self, "fluid_pass_claim", ti.i32, passes)
@@ -46,6 +46,8 @@ class WorkerSolve:
         self.pass_sum = make(self, "fluid_pass_sum", ti.i64, passes)
         self.pass_max = make(self, "fluid_pass_max", float, passes)
         self.solve_out = make(self, "fluid_solve_out", ti.i64, 3)
+        if self.worker_substep:
+            self._make_substep_counters(make)
 
     # Without Taichi's CFG passes (its other solve kernels' code, inlined twice more, compiles slowly).
     @compile_with(cfg_optimization=False)
@@ -59,26 +61,32 @@ class WorkerSolve:
         n = self._live()
         for task in range(self.worker_items):
             if workers.is_worker(task):
-                self._pass(0, 0, state, h, divergence, n)
-                q, it = 1, -1
-                apply = WARM_DIVERGENCE > 0.0 or divergence == 0
-                while True:
-                    if apply:
-                        self._pass(q, 1, state, h, divergence, n)
-                        q += 1
-                    self._pass(q, 2, state, h, divergence, n)
-                    it += 1
-                    s = self.pass_sum[q]
-                    if not (it < most and (s >= above or it < least)):
-                        if task == 0:
-                            self.solve_out[0] = it
-                            self.solve_out[1] = s
-                            self.solve_out[2] = q
-                        break
-                    q += 1
-                    apply = True
+                self._solve_in_worker(task, state, h, divergence, n, above, least, most)
         self._report_pass()
         return ti.Vector([self.solve_out[0], self.solve_out[1]], dt=ti.i64)
+
+    @ti.func
+    def _solve_in_worker(self, task, state: ti.template(), h, divergence, n, above, least, most):
+        """One worker's part of the solve, on the passes' counters from 0 (reset before the workers
+        start); the first worker writes solve_out (iterations, the last errors' sum, its pass)."""
+        self._pass(0, 0, state, h, divergence, n)
+        q, it = 1, -1
+        apply = WARM_DIVERGENCE > 0.0 or divergence == 0
+        while True:
+            if apply:
+                self._pass(q, 1, state, h, divergence, n)
+                q += 1
+            self._pass(q, 2, state, h, divergence, n)
+            it += 1
+            s = self.pass_sum[q]
+            if not (it < most and (s >= above or it < least)):
+                if task == 0:
+                    self.solve_out[0] = it
+                    self.solve_out[1] = s
+                    self.solve_out[2] = q
+                break
+            q += 1
+            apply = True
 
     @ti.func
     def _pass(self, q, kind: ti.template(), state: ti.template(), h, divergence, n):
