@@ -221,24 +221,31 @@ class PositionBasedFluid(FluidDynamics):
         n = self._live()
         for task in range(self.worker_items):
             if workers.is_worker(task):
-                self._pass(0, self.PREDICT, state, h, 0, n)
-                self._pass(1, self.CONSTRAIN, state, h, 0, n)
-                q, it = 1, 0
-                s = self.pass_sum[1]
-                while it < most and (s >= above or it < least):
-                    self._pass(q + 1, self.PROJECT, state, h, 0, n)
-                    self._pass(q + 2, self.COPY, state, h, 0, n)
-                    self._pass(q + 3, self.CONSTRAIN, state, h, 0, n)
-                    q += 3
-                    it += 1
-                    s = self.pass_sum[q]
-                self._pass(q + 1, self.VELOCITIES, state, h, 0, n)
-                if task == 0:
-                    self.solve_out[0] = it
-                    self.solve_out[1] = s
-                    self.solve_out[2] = q
+                self._density_in_worker(task, state, h, 0, n, above, least, most)
         self._report_pass()
         return ti.Vector([self.solve_out[0], self.solve_out[1]], dt=ti.i64)
+
+    @ti.func
+    def _density_in_worker(self, task, state: ti.template(), h, divergence, n, above, least, most):
+        """One worker's part of the density step (the passes' counters from 0, reset before the workers
+        start); the first worker writes solve_out. `divergence` is unused (the DFSPH solve's signature,
+        worker_substep.py calls either)."""
+        self._pass(0, self.PREDICT, state, h, 0, n)
+        self._pass(1, self.CONSTRAIN, state, h, 0, n)
+        q, it = 1, 0
+        s = self.pass_sum[1]
+        while it < most and (s >= above or it < least):
+            self._pass(q + 1, self.PROJECT, state, h, 0, n)
+            self._pass(q + 2, self.COPY, state, h, 0, n)
+            self._pass(q + 3, self.CONSTRAIN, state, h, 0, n)
+            q += 3
+            it += 1
+            s = self.pass_sum[q]
+        self._pass(q + 1, self.VELOCITIES, state, h, 0, n)
+        if task == 0:
+            self.solve_out[0] = it
+            self.solve_out[1] = s
+            self.solve_out[2] = q
 
     @ti.func
     def _velocities_pass(self, h):

@@ -1,37 +1,41 @@
 """A liquid's whole substep in two launches on the CPU's threads (workers.py), its passes separated by
 barriers: before the method moves the particles, the positions' gather, the grid's build, the
 neighbourhoods, the divergence solve and the velocities' write-back; after it, XSPH, the density solve
-and the last guard: the passes of serial_substep.py, in the same order, with the same per-slot functions.
+(position-based fluids: their density step, pbf.py) and the last guard: the passes of serial_substep.py,
+in the same order, with the same per-slot functions.
 
 Why: a liquid of one to three thousand particles runs its loops serially (below FLUID_SERIAL_BELOW,
-dfsph.py), on one core, because a parallel loop costs ~70-90 us to start on the 2-core Xeon and a
-substep makes about a dozen. Here the threads start twice a substep. The grid's build (a counting sort
-whose passes are short) runs on one worker while the others wait at its barrier. The `dam_break`
-demo's column in frames of 1/30 s (benchmarks/fluid_realtime.py's scene, DFSPH, f32), medians of the
-frames of three alternating runs each, serial against here: 28.0-28.9 against 25.3-26.4 ms at 1,458
-particles, 42.1-44.2 against 32.8-41.4 at 2,000, 64.1-67.2 against 47.1-58.9 at 2,662, but 16.5-17.0
-against 17.1-18.5 at 1,024: it starts at WORKER_SUBSTEP_FROM. Its two kernels compile in about 0.4 s
-more than the serial ones with an empty cache (2,000 particles' first frame 0.93 -> 1.35 s) and 0.1 s
-more with a warm one. Larger liquids keep a parallel loop per pass and their solves on workers: there
-this launch, compiled without Taichi's CFG passes, was 5-40 % slower (4,394 and 6,859 particles), and
-with them no faster in three alternating runs while the 2,000 particles' first frame took 2.8 s.
+dfsph.py), on one core, because a parallel loop costs ~70-90 us to start on the 2-core Xeon and a substep
+makes about a dozen. Here the threads start twice a substep. The grid's build (a counting sort whose
+passes are short) runs on one worker while the others wait at its barrier. The `dam_break` demo's column
+in frames of 1/30 s (benchmarks/fluid_realtime.py's scene, f32), medians of the frames of three
+alternating runs each, serial against here: DFSPH 28.0-28.9 against 25.3-26.4 ms at 1,458 particles,
+42.1-44.2 against 32.8-41.4 at 2,000, 64.1-67.2 against 47.1-58.9 at 2,662, but 16.5-17.0 against
+17.1-18.5 at 1,024; position-based fluids 21.2-22.7 against 16.5-18.7 at 1,024, 35.2-36.3 against
+26.2-27.0 at 1,458, 56.6-57.4 against 37.8-48.3 at 2,000, 81.1-86.2 against 63.2-68.1 at 2,662, but
+12.2-12.7 against 13.4 at 686 (two runs): each method starts at its WORKER_SUBSTEP_FROM. Its two kernels
+compile in about 0.4 s more than the serial ones with an empty cache (2,000 particles' first frame 0.93 ->
+1.35 s with DFSPH, 0.90 -> 1.28 s with position-based fluids) and 0.1 s more with a warm one. Larger
+liquids keep a parallel loop per pass and their solves on workers: there this launch, compiled without
+Taichi's CFG passes, was 5-40 % slower (DFSPH, 4,394 and 6,859 particles), and with them no faster in
+three alternating runs while the 2,000 particles' first frame took 2.8 s.
 
 A slot's work does not depend on who runs it, and the errors are summed as fixed-point integers
 (pressure.py), so a substep gives the same bits on any number of threads; against the serial or the
 launch-per-pass substep the per-slot code is compiled into another kernel, so it agrees to round-off
-(tests/test_fluid_workers.py). DFSPH only, without nozzles, bodies or surface tension in the liquid;
-the others keep their substeps."""
+(tests/test_fluid_workers.py). Without nozzles, bodies or surface tension in the liquid; the others
+keep their substeps."""
 
 import taichi as ti
 
 from ... import runtime, workers
 from ...runtime import compile_with, data_oriented
 
-# None: a plain DFSPH liquid (_make_worker_substep) of WORKER_SUBSTEP_FROM to FLUID_SERIAL_BELOW particles
-# where workers run (workers.available()); True: any plain DFSPH liquid, at any thread count (one thread
-# then runs every chunk); False: never. Read when the liquid's solver is made; tests compare the paths.
+# None: a plain liquid (_make_worker_substep) of WORKER_SUBSTEP_FROM to FLUID_SERIAL_BELOW particles where
+# workers run (workers.available()); True: any plain liquid, at any thread count (one thread then runs
+# every chunk); False: never. Read when the liquid's solver is made; tests compare the paths.
 WORKER_SUBSTEP = None
-WORKER_SUBSTEP_FROM = 1200
+WORKER_SUBSTEP_FROM = {"dfsph": 1200, "pbf": 1000}  # particles, by method (the module docstring)
 SUBSTEP_PASSES = 8  # the passes outside the solve, in both launches
 
 
@@ -42,10 +46,10 @@ class WorkerSubstep:
     def _make_worker_substep(self) -> None:
         """Whether this liquid's substeps run on workers (the solve's counters are made with the worker
         solve's, _make_worker_solve, and the substep's own with them)."""
-        plain = self.method == "dfsph" and not (self.emitted or self.coupled or self.surface_tension > 0.0)
+        plain = not (self.emitted or self.coupled or self.surface_tension > 0.0)
         plain = plain and runtime.backend_name() == "cpu"
         if WORKER_SUBSTEP is None:
-            mid = self.serial and self.model.fluid_capacity >= WORKER_SUBSTEP_FROM
+            mid = self.serial and self.model.fluid_capacity >= WORKER_SUBSTEP_FROM[self.method]
             self.worker_substep = plain and mid and workers.available()
         else:
             self.worker_substep = plain and WORKER_SUBSTEP
@@ -125,10 +129,14 @@ class WorkerSubstep:
                 self._once(1, 0, count, t)
                 self._each(2, n, 1, state, model, h, t)
                 self._once(3, 1, count, t)
-                self._solve_in_worker(task, state, h, 1, n, above, least, most)
-                self._each(4, n, 2, state, model, h, t)
-        self._report_pass()
-        return ti.Vector([self.solve_out[0], self.solve_out[1], n], dt=ti.i64)
+                if ti.static(self.divergence_solve):
+                    self._solve_in_worker(task, state, h, 1, n, above, least, most)
+                    self._each(4, n, 2, state, model, h, t)
+        out = ti.Vector([0, 0, n], dt=ti.i64)  # without a divergence solve (position-based fluids)
+        if ti.static(self.divergence_solve):
+            self._report_pass()
+            out = ti.Vector([self.solve_out[0], self.solve_out[1], n], dt=ti.i64)
+        return out
 
     # Without Taichi's CFG passes, as the last guard it holds (dfsph.py's _finish says why).
     @compile_with(cfg_optimization=False)
@@ -152,7 +160,10 @@ class WorkerSubstep:
             if workers.is_worker(task):
                 self._each(0, n, 3, state, model, h, t)
                 self._each(1, n, 4, state, model, viscosity, t)
-                self._solve_in_worker(task, state, h, 0, n, above, least, most)
+                if ti.static(self.divergence_solve):
+                    self._solve_in_worker(task, state, h, 0, n, above, least, most)
+                else:  # position-based fluids' density step (pbf.py)
+                    self._density_in_worker(task, state, h, 0, n, above, least, most)
                 self._each(2, n, 5, state, model, h, t)
         self._report_pass()
         return ti.Vector([self.solve_out[0], self.solve_out[1], n], dt=ti.i64), self.err_max[None]
