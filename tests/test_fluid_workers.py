@@ -10,14 +10,15 @@ import pytest
 import taichi_anim as ta
 import taichi_anim.bodies.fluid.worker_solve as worker_solve
 import taichi_anim.bodies.fluid.worker_substep as worker_substep
+from taichi_anim import workers
 from taichi_anim.bodies.fluid.dfsph import FLUID_SERIAL_BELOW
 
 
 def _collapse(worker: bool, threads: int, method: str, frames: int = 3, width: float = 0.32, substep=False):
     """A block 16 particles high and `width` wide and deep (0.32: 4,096 particles, whose loops run in
     parallel) collapsing in a box twice its width: per frame (substeps, divergence iterations, density
-    iterations), then the run's fluid.stats(); final positions; whether the workers solved (or ran the
-    substep: `substep` sets worker_substep.WORKER_SUBSTEP)."""
+    iterations), then the run's fluid.stats(); final positions; (whether the workers solved, the
+    substep's path in run.json's fluid settings). `substep` sets worker_substep.WORKER_SUBSTEP."""
     ta.init("cpu", precision="f64", cpu_threads=threads)
     worker_solve.WORKER_SOLVE = worker
     worker_substep.WORKER_SUBSTEP = substep
@@ -38,8 +39,7 @@ def _collapse(worker: bool, threads: int, method: str, frames: int = 3, width: f
             f = fluid.frame_stats()
             steps.append((f["steps"], f["divergence_iterations"], f["density_iterations"]))
         steps.append(fluid.stats())  # the run's totals and the density errors reached, last
-        used = fluid.workers if substep is False else fluid.settings()["substep"] == "workers"
-        return steps, state.positions(), used
+        return steps, state.positions(), (fluid.workers, fluid.settings()["substep"])
     finally:
         worker_solve.WORKER_SOLVE = None
         worker_substep.WORKER_SUBSTEP = None
@@ -48,9 +48,9 @@ def _collapse(worker: bool, threads: int, method: str, frames: int = 3, width: f
 @pytest.mark.parametrize("method", ["dfsph", "pbf"])
 def test_worker_solves_match_a_launch_per_iteration_on_any_thread_count(method):
     """DFSPH's divergence and density solves, or position-based fluids' whole density step."""
-    launches, x_launches, used = _collapse(False, 2, method)
+    launches, x_launches, (used, _) = _collapse(False, 2, method)
     assert not used
-    two, x_two, used = _collapse(True, 2, method)
+    two, x_two, (used, _) = _collapse(True, 2, method)
     assert used
     one, x_one, _ = _collapse(True, 1, method)
     assert two[:-1] == launches[:-1] and one == two
@@ -65,10 +65,14 @@ def test_worker_substep_matches_the_serial_substep_on_any_thread_count(method):
     """1,600 particles (loops serial): the same iterations every step, the same errors reached and the
     same positions (to round-off) as the serial substep in two launches, and the same bits on one thread
     as on two."""
-    serial, x_serial, _ = _collapse(False, 2, method, width=0.2, substep=False)
-    two, x_two, used = _collapse(False, 2, method, width=0.2, substep=None)
-    assert used  # chosen by default for 1,600 particles (run.json's fluid settings: substep "workers")
-    one, x_one, _ = _collapse(False, 1, method, width=0.2, substep=True)
+    serial, x_serial, (_, kind) = _collapse(None, 2, method, width=0.2, substep=False)
+    assert kind == "serial"
+    two, x_two, (_, kind) = _collapse(None, 2, method, width=0.2, substep=None)
+    assert (kind == "workers") == workers.available()  # the default for 1,600 particles, on 2 cores
+    if kind != "workers":  # one core: forced, so that the comparison below is still made
+        two, x_two, (_, kind) = _collapse(None, 2, method, width=0.2, substep=True)
+    one, x_one, (_, kind_one) = _collapse(None, 1, method, width=0.2, substep=True)
+    assert kind == kind_one == "workers"
     assert two[:-1] == serial[:-1] and one == two  # every frame's iterations; the run's totals, bitwise
     for key, value in serial[-1].items():  # the errors reached, to round-off
         assert two[-1][key] == pytest.approx(value, rel=1e-9, abs=1e-15), key

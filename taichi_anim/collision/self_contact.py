@@ -31,8 +31,8 @@ positions x0 (intersection-free) and its end positions x1:
    impact zones, translation only). A common shift leaves every pair inside the group as safe as it was;
    pairs to the outside are re-checked, and a vertex the shift carries past its reach has its pairs
    looked for again from there (a second round). Only the last resort (every vertex held, after
-   HOLD_PASSES), a group with a pinned vertex and one the shift would carry into a collider (pressed
-   against it: the collider takes the momentum) do not keep momentum.
+   HOLD_PASSES), a group with a pinned vertex and one whose shift would leave a vertex inside a collider
+   (pressed against it: the collider takes the momentum) do not keep momentum.
 
 Candidate pairs come from a box structure over the triangles at x0 (a BVH, spatial/), refit every step
 (an edge's candidates are the edges owned by the triangles its box meets: owned_edges), each primitive's

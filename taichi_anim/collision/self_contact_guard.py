@@ -147,8 +147,8 @@ class DisplacementGuard:
         then every vertex of its group shifted by the group's momentum deficit over its mass, so the
         group keeps its momentum (a perfectly inelastic contact: the group's mass-weighted common
         motion). The shift is common to the group, so every pair inside it stays safe; a group with a
-        pinned or anchored vertex, or one the shift would carry into a collider (external: it takes the
-        momentum), is not shifted. t [s]: the step's end, for the colliders."""
+        pinned or anchored vertex, or one whose shift would leave a vertex inside a collider (external:
+        it takes the momentum), is not shifted. t [s]: the step's end, for the colliders."""
         for v in range(self.verts()):
             self.g_mass[v] = 0.0
             self.g_deficit[v] = ti.Vector.zero(float, 3)
@@ -166,10 +166,12 @@ class DisplacementGuard:
                 else:
                     self.g_fixed[r] = 1
         if ti.static(model.collider_count > 0):
-            # A group whose common motion would carry a vertex into a collider is pressed against it: the
-            # collider takes the momentum (as a pinned vertex's does), and the group is not shifted. Nothing
-            # moves a vertex after the guard, so a shift into a collider would end the step there, and the
-            # next step's projection would push it out into the cloth above it.
+            # A group whose common motion would leave a vertex inside a collider (closer than its radius)
+            # is pressed against it: the collider takes the momentum (as a pinned vertex's does), and the
+            # group is not shifted. Nothing moves a vertex after the guard, so a shift into a collider would
+            # end the step there, and the next step's projection would push it out into the cloth above it.
+            # Tested at the shifted position only: a group already touching (its held position a hair
+            # inside after round-off) is held too, whichever way the shift points; it is in contact.
             for v in range(self.verts()):
                 r = self.g_root[v]
                 if self.hold[v] and self.g_fixed[r] == 0 and self.g_mass[r] > 0.0:

@@ -200,7 +200,7 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, WorkerSubstep, F
                 state, model, n, float(state.time), h, first_sum_above(self.divergence_tolerance, n),
                 min(self.min_iterations, 1), self.max_iterations,
             ))  # fmt: skip
-            self.last = dict(divergence_iterations=it, divergence_error=total / ERROR_SCALE / n)
+            self.last = dict(divergence_iterations=it, divergence_error=total / ERROR_SCALE / n if n else 0.0)
             return
         if self._two_launch_substep():  # a small liquid: one launch (serial_substep.py)
             above = self._thresholds(model, self.divergence_tolerance)
@@ -231,7 +231,7 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, WorkerSubstep, F
                 first_sum_above(self.tolerance, model.fluid_count), self.min_iterations, self.max_iterations,
             )  # fmt: skip
             iterations, total, n = (int(c) for c in counts)
-            mean, worst = total / ERROR_SCALE / n, float(worst)
+            mean, worst = (total / ERROR_SCALE / n, float(worst)) if n else (0.0, 0.0)
         elif self._two_launch_substep():  # a small liquid: one launch (serial_substep.py)
             counts, worst = self._end_serially(
                 state, model, h, float(state.time + h), self.viscosity, self.surface_tension,

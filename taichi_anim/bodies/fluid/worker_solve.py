@@ -23,7 +23,8 @@ from .pressure import ERROR_SCALE, WARM_DIVERGENCE
 
 # None: a liquid whose loops run in parallel solves by workers where they run (workers.available());
 # True: on the CPU at any thread count (one thread then runs every chunk); False: never (a launch per
-# iteration). Read when the liquid's solver is made; tests compare the paths.
+# iteration; nor a substep on workers, worker_substep.py). Read when the liquid's solver is made; tests
+# compare the paths.
 WORKER_SOLVE = None
 
 

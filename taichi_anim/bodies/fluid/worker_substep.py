@@ -30,13 +30,14 @@ import taichi as ti
 
 from ... import runtime, workers
 from ...runtime import compile_with, data_oriented
+from . import worker_solve
 
 # None: a plain liquid (_make_worker_substep) of WORKER_SUBSTEP_FROM to FLUID_SERIAL_BELOW particles where
 # workers run (workers.available()); True: any plain liquid, at any thread count (one thread then runs
 # every chunk); False: never. Read when the liquid's solver is made; tests compare the paths.
 WORKER_SUBSTEP = None
 WORKER_SUBSTEP_FROM = {"dfsph": 1200, "pbf": 1000}  # particles, by method (the module docstring)
-SUBSTEP_PASSES = 8  # the passes outside the solve, in both launches
+SUBSTEP_PASSES = 4  # the most passes outside the solve in one launch (their counters are reset per launch)
 
 
 @data_oriented
@@ -47,7 +48,10 @@ class WorkerSubstep:
         """Whether this liquid's substeps run on workers (the solve's counters are made with the worker
         solve's, _make_worker_solve, and the substep's own with them)."""
         plain = not (self.emitted or self.coupled or self.surface_tension > 0.0)
-        plain = plain and runtime.backend_name() == "cpu"
+        # Its solves run on workers: not where they are switched off (WORKER_SOLVE False) or where a
+        # launch per pass is asked for (one_launch_solve False; tests compare those paths).
+        plain = plain and runtime.backend_name() == "cpu" and self.one_launch_solve
+        plain = plain and worker_solve.WORKER_SOLVE is not False
         if WORKER_SUBSTEP is None:
             mid = self.serial and self.model.fluid_capacity >= WORKER_SUBSTEP_FROM[self.method]
             self.worker_substep = plain and mid and workers.available()
@@ -95,13 +99,11 @@ class WorkerSubstep:
         workers.wait_done(self.sub_done, q, chunks)
 
     @ti.func
-    def _once(self, q, kind: ti.template(), count, t):
-        """Substep pass q run by one worker (the first to claim it) while the others wait."""
+    def _once(self, q, count, t):
+        """Substep pass q, the grid's build, run by one worker (the first to claim it) while the others
+        wait."""
         if workers.claim(self.sub_claim, q) == 0:
-            if ti.static(kind == 0):
-                self.grid.build_pass(self.cx, count, None, t, False)
-            else:
-                self._reached_mean()
+            self.grid.build_pass(self.cx, count, None, t, False)
             workers.finish(self.sub_done, q)
         workers.wait_done(self.sub_done, q, 1)
 
@@ -126,12 +128,14 @@ class WorkerSubstep:
         for task in range(self.worker_items):
             if workers.is_worker(task):
                 self._each(0, n, 0, state, model, h, t)
-                self._once(1, 0, count, t)
+                self._once(1, count, t)
                 self._each(2, n, 1, state, model, h, t)
-                self._once(3, 1, count, t)
                 if ti.static(self.divergence_solve):
                     self._solve_in_worker(task, state, h, 1, n, above, least, most)
-                    self._each(4, n, 2, state, model, h, t)
+                    self._each(3, n, 2, state, model, h, t)
+        ti.loop_config(serialize=True)  # after every worker: the neighbourhoods' mean error reached
+        for _ in range(1):
+            self._reached_mean()
         out = ti.Vector([0, 0, n], dt=ti.i64)  # without a divergence solve (position-based fluids)
         if ti.static(self.divergence_solve):
             self._report_pass()
