@@ -51,6 +51,7 @@ from .serial_substep import SerialSubstep
 from .sph_kernel import cubic_w, cubic_w_grad, lattice_sum
 from .worker_solve import WorkerSolve
 from .worker_substep import WorkerSubstep
+from .xsph import XsphViscosity
 
 FLUID_NEIGHBORS = 64  # listed fluid neighbours per particle (26 at rest; a compressed splash ~45)
 BODY_NEIGHBORS = 64  # listed samples of rigid bodies per particle (~13 at a face, ~40 at a corner)
@@ -61,7 +62,7 @@ FLUID_SERIAL_BELOW = 3000
 
 
 @data_oriented
-class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, WorkerSubstep, FluidReport):
+class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, WorkerSubstep, XsphViscosity, FluidReport):
     """The liquid's pressure solver (module docstring); built by the Stepper from `model.fluid`."""
 
     name = "fluid"
@@ -475,34 +476,6 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, WorkerSubstep, F
         j = self.grid.sorted_id[k]
         state.particle_v[model.fluid_particle[j]] = self.sv[k]
         state.fluid_kappa_v[j] = self.kacc[k] * h
-
-    @ti.kernel
-    def _gather_velocities(self, state: ti.template(), model: ti.template(), c: float):
-        self._gather_velocities_pass(state, model, c)
-
-    @ti.func
-    def _gather_velocities_pass(self, state: ti.template(), model: ti.template(), c):
-        """v* from the method, smoothed by XSPH with the pair's mean density (Monaghan 1989, eq. 2.9):
-        v_i += c sum_j (2 m / (rho_i + rho_j)) (v_j - v_i) W_ij, equal and opposite in every pair."""
-        ti.loop_config(serialize=self.serial)
-        for k in range(self._live()):
-            self._copy_velocity_one(state, model, k)
-        ti.loop_config(serialize=self.serial)
-        for k in range(self._live()):
-            self._xsph_one(k, c)
-
-    @ti.func
-    def _copy_velocity_one(self, state: ti.template(), model: ti.template(), k):
-        self.sv2[k] = state.particle_v[model.fluid_particle[self.grid.sorted_id[k]]]
-
-    @ti.func
-    def _xsph_one(self, k, c):
-        vi, rho = self.sv2[k], self.rho[k]
-        dv = ti.Vector.zero(float, 3)
-        for m in range(self.nn[k]):
-            kk = self.nbr[k, m]
-            dv += (self.sv2[kk] - vi) * (2.0 * self.weight[k, m] / (rho + self.rho[kk]))
-        self.sv[k] = vi + c * self.mass * dv
 
     @ti.kernel
     def _surface_tension(self, h: float, gamma: float):
