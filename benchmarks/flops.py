@@ -8,8 +8,9 @@ written on (no `cpu` PMU under /sys/bus/event_source/devices), so they are a mod
   (integrators/symplectic_euler.py: a = (m g) / m, v += h a, x += h v: 18); the container box in
   projection mode (collision/response.py `_project_light`: the nearest of six walls and the radius, 14);
   the watchdog (watchdog.py `watch_against`: the non-finite sum and its bit test, six bounds, |v|², 18).
-- Spring-substep (terms/springs.py `spring_force`: d and dv 6, |d|² 5, the clamp and rsqrt 2, n 3,
-  length 5, stretch, damping dot and force scale 9, the force vector 3) plus its two gathers (6).
+- Spring-substep (terms/springs.py `spring_force`: d and dv 6, |d|² 5, the clamp and rsqrt 2, the
+  length 1, the damping dot and its scale 6, stretch, damping and force scale 5, the force vector 3) plus
+  its two sums into the ends or gathers (6).
 - Cloth vertex-substep (the update with gravity 12, the watchdog 18, the force scale by 1/m 3, the
   gravity force 3, the element sum 2).
 """
@@ -20,7 +21,7 @@ import numpy as np
 import taichi as ti
 
 PARTICLE_STEP = 1 + 18 + 14 + 18
-SPRING_SUBSTEP = 6 + 5 + 2 + 3 + 5 + 9 + 3 + 6
+SPRING_SUBSTEP = 6 + 5 + 2 + 1 + 6 + 5 + 3 + 6
 CLOTH_VERTEX_SUBSTEP = 12 + 18 + 3 + 3 + 2
 
 
