@@ -26,6 +26,33 @@ def tank(spacing, block_hi, box_hi, *, gravity=True, **options):
     return model, state, stepper, next(s for s in stepper.solvers if s.name == "fluid")
 
 
+def test_a_crowded_particle_sums_every_neighbour_beyond_its_list():
+    """A block squeezed to 0.6 of the spacing (about 150 neighbours each, the list holds 64), away from the
+    walls: every particle's density is m sum_j W over all its neighbours, as brute force sums it, and the
+    neighbours beyond the lists are counted as overflows."""
+    from taichi_anim.bodies.fluid.dfsph import FLUID_NEIGHBORS
+    from taichi_anim.bodies.fluid.sph_kernel import cubic_w_numpy
+
+    d = 0.02
+    b = ta.Builder()
+    b.add_collider_box((0.0, 0.0, 0.0), (0.4, 0.4, 0.4), restitution=0.0)
+    b.add_fluid(spacing=d)
+    g = (np.arange(8) - 3.5) * 0.6 * d
+    x = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3) + 0.2
+    b.add_fluid_particles(x, np.zeros_like(x))
+    model = b.finalize()
+    state = model.state()
+    stepper = ta.make_integrator("symplectic_euler").stepper_for(model)
+    fluid = next(s for s in stepper.solvers if s.name == "fluid")
+    stepper.step(state, 1e-7)
+    r = np.linalg.norm(x[:, None, :] - x[None, :, :], axis=2)
+    near = (r < fluid.support).sum(axis=1) - 1
+    assert near.max() > 2 * FLUID_NEIGHBORS  # the interior's lists overflow
+    want = fluid.mass * cubic_w_numpy(r, fluid.support).sum(axis=1)
+    np.testing.assert_allclose(state.fluid_densities(), want, rtol=2e-5)  # f32 sums of ~150 terms
+    assert fluid.stats()["neighbor_overflow"] == np.maximum(near - FLUID_NEIGHBORS, 0).sum()
+
+
 def test_a_block_filled_to_the_walls_starts_at_rest_density():
     """The boundary samples continue the block's lattice half a spacing inside the walls, so a particle
     against a flat wall sees the neighbourhood of an interior one: its density is rho0 (module

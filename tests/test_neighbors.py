@@ -182,3 +182,69 @@ def test_build_rejects_a_count_beyond_the_positions():
         ns.build(x, count=100)
     with pytest.raises(ParameterError, match="count must be in"):
         ns.build(x, count=-5)
+
+
+@ti.data_oriented
+class ScanRecorder:
+    """Per particle, the slots for_each_near visits and, separately, the candidates for_each_in_columns
+    visits with the same distance test applied afterwards, each in visit order."""
+
+    def __init__(self, ns, n, radius):
+        self.ns, self.radius = ns, radius
+        self.near = ti.field(ti.i32, (n, MAX_NEIGHBORS))
+        self.near_count = ti.field(ti.i32, n)
+        self.kept = ti.field(ti.i32, (n, MAX_NEIGHBORS))
+        self.kept_count = ti.field(ti.i32, n)
+        self.candidates = ti.field(ti.i32, n)
+
+    @ti.func
+    def visit_near(self, i, k, d, ret: ti.template()):
+        if ret < MAX_NEIGHBORS:
+            self.near[i, ret] = k
+        ret += 1
+
+    @ti.func
+    def visit_candidate(self, i, k, d, ret: ti.template()):
+        ret[1] += 1
+        if d.norm_sqr() < self.radius * self.radius:
+            if ret[0] < MAX_NEIGHBORS:
+                self.kept[i, ret[0]] = k
+            ret[0] += 1
+
+    @ti.kernel
+    def scan(self, x: ti.template(), n: ti.i32):
+        for i in range(n):
+            acc = 0
+            self.ns.for_each_near(i, x[i], self.radius, self.visit_near, acc)
+            self.near_count[i] = acc
+            both = ti.Vector([0, 0])
+            self.ns.for_each_in_columns(i, x[i], self.visit_candidate, both)
+            self.kept_count[i] = both[0]
+            self.candidates[i] = both[1]
+
+
+def test_column_scan_is_the_near_scan_without_its_test():
+    """for_each_in_columns visits the 5 x 5 x 5 cells around a point in for_each_near's order: the
+    candidates within the radius are exactly for_each_near's slots, in the same order, and those are
+    NumPy's pairs; the candidates are the particles of the 125 cells (clipped at the grid's edges)."""
+    h = 0.1
+    radius = 0.1873  # cells of h = radius / 2 (about); no lattice distance is near it
+    x = cloud(2000, 3, h)
+    lo, hi = np.full(3, -1.0), np.full(3, 0.6)
+    ns = make_neighbor_search(len(x), radius / 2, domain=(tuple(lo), tuple(hi)), method="grid")
+    xf = ti.Vector.field(3, float, len(x))
+    xf.from_numpy(x)
+    ns.build(xf)
+    rec = ScanRecorder(ns, len(x), radius)
+    rec.scan(xf, len(x))
+    near_n, kept_n = rec.near_count.to_numpy(), rec.kept_count.to_numpy()
+    assert near_n.max() <= MAX_NEIGHBORS and (near_n == kept_n).all()
+    near, kept = rec.near.to_numpy(), rec.kept.to_numpy()
+    for i in range(len(x)):
+        assert (near[i, : near_n[i]] == kept[i, : kept_n[i]]).all()
+    ids = ns.sorted_id.to_numpy()
+    pairs = {(i, int(ids[k])) for i in range(len(x)) for k in near[i, : near_n[i]] if ids[k] != i}
+    assert pairs == numpy_pairs(x, radius)
+    cell = np.clip(np.floor((x - lo) / ns.cell_size).astype(int), 0, np.array(ns.dims) - 1)
+    box = (np.abs(cell[:, None, :] - cell[None, :, :]) <= 2).all(axis=2)
+    np.testing.assert_array_equal(rec.candidates.to_numpy(), box.sum(axis=1))

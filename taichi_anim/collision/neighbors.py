@@ -13,7 +13,9 @@ slot k whose build-time position sorted_x[k] lies within `radius` of p (radius <
 within `radius` at build time, for callers that test distances themselves (the sphere sweeps, whose
 positions move a little between the build and their last sweep: pairs that only come within reach
 during those moves are found at the next build). `i` is passed through to `visit` (the
-caller's own index); `ret` is the caller's accumulator, passed by reference.
+caller's own index); `ret` is the caller's accumulator, passed by reference. On a bounded grid of cells of
+half the radius, `for_each_near` scans 5 x 5 columns of 5 cells (fewer candidates), and
+`for_each_in_columns` is that scan without its distance test, for a caller whose test is branch-free.
 """
 
 from enum import Enum
@@ -294,11 +296,23 @@ class NeighborGrid(_NeighborSearch):
         than the 27 cells of radius a for_each_neighbor scans on a grid of cells of radius). `radius`: a
         Python number (its square is taken in double precision, as the liquid's solver always has).
         A bounded grid only (the hashed one's buckets are not laid out by column)."""
+        self._columns(i, p, radius * radius, True, visit, ret)
+
+    @ti.func
+    def for_each_in_columns(self, i, p, visit: ti.template(), ret: ti.template()):
+        """for_each_near's scan without its distance test: visit(i, k, p - sorted_x[k], ret) for every
+        slot k of the 5 x 5 columns of 5 cells around p's cell, in the same order, for a caller whose
+        own test is branch-free (a test that mostly fails, taken as a branch, mispredicts often)."""
+        self._columns(i, p, 0.0, False, visit, ret)
+
+    @ti.func
+    def _columns(
+        self, i, p, r2: ti.template(), check: ti.template(), visit: ti.template(), ret: ti.template()
+    ):
         ti.static_assert(not self.hashed, "for_each_near needs a bounded grid")
         base = self.coords(p)
         z0 = ti.max(base[2] - 2, 0)
         z1 = ti.min(base[2] + 2, self.dims[2] - 1)
-        r2 = radius * radius
         for q in range(25):
             cx = base[0] + q // 5 - 2
             cy = base[1] + q % 5 - 2
@@ -306,7 +320,10 @@ class NeighborGrid(_NeighborSearch):
                 row = (cx * self.dims[1] + cy) * self.dims[2]  # cells adjacent in z are adjacent in memory
                 for k in range(self.cell_start[row + z0], self.cell_start[row + z1 + 1]):
                     d = p - self.sorted_x[k]
-                    if d.norm_sqr() < r2:
+                    if ti.static(check):
+                        if d.norm_sqr() < r2:
+                            visit(i, k, d, ret)
+                    else:
                         visit(i, k, d, ret)
 
 
