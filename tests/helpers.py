@@ -139,3 +139,9 @@ def momentum_exchange(model, frames: int, dt: float):
         stepper.advance(state, dt, 1)
     v = state.velocities()
     return float(np.abs((mass * v).sum(axis=0) - p0).max()), float((mass * np.abs(v)).sum()), v
+
+
+@ti.func
+def row_vec3(a: ti.template(), i, k: ti.template()):
+    """Row i, columns 3k..3k+2 of a (N, 3m) array as a vector."""
+    return ti.Vector([a[i, 3 * k], a[i, 3 * k + 1], a[i, 3 * k + 2]])
