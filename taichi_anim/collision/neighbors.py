@@ -311,7 +311,7 @@ class NeighborGrid(_NeighborSearch):
     def _columns(
         self, i, p, r2: ti.template(), check: ti.template(), visit: ti.template(), ret: ti.template()
     ):
-        ti.static_assert(not self.hashed, "for_each_near needs a bounded grid")
+        ti.static_assert(not self.hashed, "the column scan needs a bounded grid")
         base = self.coords(p)
         z0 = ti.max(base[2] - 2, 0)
         z1 = ti.min(base[2] + 2, self.dims[2] - 1)

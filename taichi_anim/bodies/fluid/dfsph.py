@@ -331,9 +331,10 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, WorkerSubstep, X
     def _list_fluid(self, k, kk, d, acc: ti.template()):
         """A candidate of slot k's scan: written at the list's end, which moves on only if it is a
         neighbour (within the support, not k itself). No branch on that test: about one candidate in
-        five is a neighbour, and a branch on it mispredicted often enough to take ~30 % of the
-        neighbourhood pass (its shares are summed after the scan, `_add_listed`). A neighbour beyond the
-        list's room is summed at once and counted as an overflow."""
+        five is a neighbour, and with the branch (and each neighbour's sums inside it) the scan and sums
+        took 1.4x as long (6,859 particles, one thread); the listed neighbours' shares are summed after
+        the scan (`_neighborhood_one`). A neighbour beyond the list's room is summed at once and counted
+        as an overflow."""
         near = (d.norm_sqr() < self.support * self.support) & (kk != k)
         if acc.n < FLUID_NEIGHBORS:
             self.nbr[k, acc.n] = kk
