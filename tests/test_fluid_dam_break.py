@@ -46,7 +46,7 @@ def test_the_surge_front_converges_and_runs_ahead_of_martin_and_moyce():
     """The front converges with resolution (12 and 16 particles across a agree within 3 %), every step's
     mean density error is within the tolerance, and the front is within 20 % of the experiment.
 
-    The goal is 10 %; it is not met: the front runs 8-21 % ahead of the experiment at T <= 2.5, at 12,
+    The goal is 10 %; it is not met: the front runs 10-21 % ahead of the experiment at T <= 2.5, at 12,
     16 and 24 particles across a alike (they agree within 3 %). Numerical dam breaks run ahead of
     Martin & Moyce's early points in general (the experiment's release of the column takes time)."""
     coarse, _ = surge_front(12)

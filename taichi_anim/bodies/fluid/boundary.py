@@ -3,7 +3,8 @@ Incompressible SPH", SIGGRAPH 2012, sec. 3): one layer of samples about a spacin
 collider's surface within reach of the liquid, each standing for the volume V_b = 1 / sum_k W(x_b - x_k)
 over its neighbouring samples (eq. 4), so that an uneven sampling (edges sampled twice, skinny
 triangles) still gives a wall the same density contribution. A sample adds psi_b W(x_i - x_b) with
-psi_b = rho0 V_b (eq. 5) to a fluid particle's density, and mirrors its pressure (eq. 10).
+psi_b = rho0 V_b (eq. 5) to a fluid particle's density, and mirrors its pressure (eq. 10; DFSPH adds the
+mirrored pressure's hydrostatic part and its missing half, wall_pressure.py).
 
 The layer lies half a spacing inside the solid, so that a block of liquid filled up to a wall (its first
 particles half a spacing from the surface) starts a spacing from the samples, as inside the liquid, and

@@ -49,6 +49,7 @@ from .pressure import ERROR_SCALE, PressureSolves, first_sum_above
 from .report import FluidReport
 from .serial_substep import SerialSubstep
 from .sph_kernel import cubic_w, cubic_w_grad, lattice_sum
+from .wall_pressure import WallPressure
 from .worker_solve import WorkerSolve
 from .worker_substep import WorkerSubstep
 from .xsph import XsphViscosity
@@ -62,7 +63,9 @@ FLUID_SERIAL_BELOW = 3000
 
 
 @data_oriented
-class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, WorkerSubstep, XsphViscosity, FluidReport):
+class FluidDynamics(
+    PressureSolves, SerialSubstep, WorkerSolve, WorkerSubstep, XsphViscosity, WallPressure, FluidReport
+):
     """The liquid's pressure solver (module docstring); built by the Stepper from `model.fluid`."""
 
     name = "fluid"
@@ -148,6 +151,7 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, WorkerSubstep, X
         # every iteration (a third fewer operations per iteration than evaluating the kernel there).
         self.grad = f("fluid_grad", dims=(3,), shape=(n, FLUID_NEIGHBORS))
         self.wall_grad = f("fluid_wall_grad", dims=(3,))
+        self._make_wall_pressure(f)
         self.weight = f("fluid_weight", shape=(n, FLUID_NEIGHBORS))  # W_kj, for XSPH
         if self.coupled:  # each particle's body samples: index and psi_b grad W
             self.body_n = f("fluid_body_n", ti.i32)
@@ -174,8 +178,10 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, WorkerSubstep, X
             self.sum_above = f("fluid_sum_above", ti.i64, shape=(2, n + 1))
             self._thresholds_for = None
         vec = ti.types.vector(3, float)  # made after ti.init: `float` is the chosen precision
-        self._sums = ti.types.struct(n=ti.i32, bn=ti.i32, mb=ti.i32, rho=float, g=vec, sq=float, wg=vec)
-        self._clear_counts()
+        self._sums = ti.types.struct(
+            n=ti.i32, bn=ti.i32, mb=ti.i32, rho=float, g=vec, sq=float, wg=vec, ww=vec, wh=vec, bg=vec
+        )
+        self._clear_counts(*body_acceleration(model))
         self.totals = dict(steps=0, density_iterations=0, divergence_iterations=0, unconverged_steps=0,
                            mean_error_max=0.0, max_error_max=0.0)  # fmt: skip
         self._frame: list[dict] = []
@@ -242,7 +248,7 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, WorkerSubstep, X
             mean = total / ERROR_SCALE / n if n else 0.0
             worst = float(worst)
         else:
-            self._gather_velocities(state, model, self.viscosity)
+            self._gather_velocities(state, model, self.viscosity, h)
             if self.surface_tension > 0.0:
                 self._surface_tension(h, self.surface_tension)
             iterations, mean, worst = self._density_step(h, state)
@@ -297,12 +303,13 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, WorkerSubstep, X
             ti.atomic_max(self.speed[None], state.particle_v[model.fluid_particle[j]].norm())
         return self.speed[None]
 
-    # One launch: Python-scope writes are a writer kernel per field and per component (five here), each
-    # compiled with an empty cache (about 17 ms).
+    # One launch: Python-scope writes are a writer kernel per field and per component (eight here), each
+    # compiled with an empty cache (about 17 ms). g: the walls' hydrostatic pressure's (wall_pressure.py).
     @ti.kernel
-    def _clear_counts(self):
+    def _clear_counts(self, gx: float, gy: float, gz: float):
         self.overflow[None] = 0
         self.reached[None] = ti.Vector([0.0, 0.0, 0.0, 0.0], dt=float)
+        self.body_g[None] = ti.Vector([gx, gy, gz], dt=float)
 
     @ti.kernel
     def _gather_positions(self, state: ti.template(), model: ti.template()):
@@ -355,15 +362,6 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, WorkerSubstep, X
         if m >= 0:
             self.grad[k, m] = g
             self.weight[k, m] = w
-
-    @ti.func
-    def _add_boundary(self, k, b, d, acc: ti.template()):
-        """A boundary sample's share of the density and of the gradient sum."""
-        w, g = cubic_w_grad(d, self.support)
-        psi = self.boundary_psi[b]
-        acc.bn += 1
-        acc.rho += psi * w
-        acc.wg += psi * g
 
     @ti.func
     def _add_body(self, k, slot, d, acc: ti.template()):
@@ -442,7 +440,9 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, WorkerSubstep, X
         xi = self.grid.sorted_x[k]
         zero = ti.Vector.zero(float, 3)
         rho = self.mass * cubic_w(0.0, self.support)
-        acc = self._sums(n=0, bn=0, mb=0, rho=rho, g=zero, sq=0.0, wg=zero)
+        acc = self._sums(
+            n=0, bn=0, mb=0, rho=rho, g=zero, sq=0.0, wg=zero, ww=zero, wh=zero, bg=self.body_g[None]
+        )
         self.grid.for_each_in_columns(k, xi, self._list_fluid, acc)
         for m in range(ti.min(acc.n, FLUID_NEIGHBORS)):
             self._add_fluid(k, m, xi - self.grid.sorted_x[self.nbr[k, m]], acc)
@@ -455,8 +455,12 @@ class FluidDynamics(PressureSolves, SerialSubstep, WorkerSolve, WorkerSubstep, X
         self.nn[k] = ti.min(acc.n, FLUID_NEIGHBORS)
         self.bn[k] = acc.bn + acc.mb  # every boundary sample, the walls' and the bodies'
         self.wall_grad[k] = acc.wg
-        grad_sum = acc.g + acc.wg
-        den = grad_sum.dot(grad_sum) + acc.sq
+        push = self._keep_wall_sums(k, acc)
+        # The density's response to the particle's own stiffness: (G + W).(G + P) + sum |m grad W|^2, G
+        # the fluid's gradient sum, W the samples', P the solves' push off them (2 W mirrored); the first
+        # term, negative where the sums oppose, is taken as 0 there.
+        own = acc.g + acc.wg
+        den = ti.max(own.dot(acc.g + push), 0.0) + acc.sq
         self.rho[k] = acc.rho
         self.alpha[k] = 1.0 / den if den > 0.0 else 0.0
         self.sv[k] = state.particle_v[model.fluid_particle[self.grid.sorted_id[k]]]

@@ -35,6 +35,7 @@ class PositionBasedFluid(FluidDynamics):
     """The liquid's position-based solver (module docstring)."""
 
     divergence_solve = False
+    mirrors_wall_pressure = False  # its walls push with the particle's own lambda (wall_pressure.py)
 
     def __init__(self, model, **options):
         super().__init__(model, **options)

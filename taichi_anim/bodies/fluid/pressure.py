@@ -151,7 +151,7 @@ class PressureSolves:
     def _correct_one(self, k, h):
         """Slot k's velocity corrected by the current stiffness, which its sum takes."""
         ki = self.kappa[k]
-        dv = ki * self.wall_grad[k]
+        dv = ki * self._push_sum(k)  # the walls' samples mirrored (wall_pressure.py)
         for m in range(self.nn[k]):
             dv += (ki + self.kappa[self.nbr[k, m]]) * self.grad[k, m]
         self.sv[k] -= h * dv

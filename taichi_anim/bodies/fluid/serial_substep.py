@@ -133,7 +133,7 @@ class SerialSubstep:
         worst = ti.cast(0.0, float)
         ti.loop_config(serialize=True)
         for _ in range(1):
-            self._gather_velocities_pass(state, model, viscosity)
+            self._gather_velocities_pass(state, model, viscosity, h)
             if ti.static(self.surface_tension > 0.0):
                 surface_tension.normals(self)
                 surface_tension.accelerate(self, h, gamma)

@@ -90,8 +90,9 @@ class WorkerSubstep:
                     self._write_velocity_one(state, model, k, a)
                 elif ti.static(kind == 3):
                     self._copy_velocity_one(state, model, k)
-                elif ti.static(kind == 4):
+                elif ti.static(kind == 4):  # a: the viscosity, b: h
                     self._xsph_one(k, a)
+                    self._wall_push_one(state, k, b)
                 else:
                     self._finish_one(state, model, k, a, b)
             workers.finish(self.sub_done, q)
@@ -163,7 +164,7 @@ class WorkerSubstep:
         for task in range(self.worker_items):
             if workers.is_worker(task):
                 self._each(0, n, 3, state, model, h, t)
-                self._each(1, n, 4, state, model, viscosity, t)
+                self._each(1, n, 4, state, model, viscosity, h)
                 if ti.static(self.divergence_solve):
                     self._solve_in_worker(task, state, h, 0, n, above, least, most)
                 else:  # position-based fluids' density step (pbf.py)

@@ -13,11 +13,11 @@ class XsphViscosity:
     """Mixin of FluidDynamics: v* gathered from the state and smoothed, into the slot velocities sv."""
 
     @ti.kernel
-    def _gather_velocities(self, state: ti.template(), model: ti.template(), c: float):
-        self._gather_velocities_pass(state, model, c)
+    def _gather_velocities(self, state: ti.template(), model: ti.template(), c: float, h: float):
+        self._gather_velocities_pass(state, model, c, h)
 
     @ti.func
-    def _gather_velocities_pass(self, state: ti.template(), model: ti.template(), c):
+    def _gather_velocities_pass(self, state: ti.template(), model: ti.template(), c, h):
         """v* from the method, smoothed by XSPH with the pair's mean density (Monaghan 1989, eq. 2.9):
         v_i += c sum_j (2 m / (rho_i + rho_j)) (v_j - v_i) W_ij, equal and opposite in every pair."""
         ti.loop_config(serialize=self.serial)
@@ -26,6 +26,7 @@ class XsphViscosity:
         ti.loop_config(serialize=self.serial)
         for k in range(self._live()):
             self._xsph_one(k, c)
+            self._wall_push_one(state, k, h)  # the walls' hydrostatic push (wall_pressure.py)
 
     @ti.func
     def _copy_velocity_one(self, state: ti.template(), model: ti.template(), k):
