@@ -27,9 +27,7 @@ def test_the_liquid_and_a_cloth_exchange_momentum_exactly():
     cloth = np.asarray(sheet.particles)
     change, scale, v = momentum_exchange(b.finalize(), 20, 1.0 / 120.0)
     assert change < 1e-12 * scale
-    # The sheet, at rest before, is carried along: measured -0.49 m/s (-0.64 before the samples pushed
-    # with the mirrored pressure, wall_pressure.py).
-    assert v[cloth, 1].mean() < -0.3
+    assert v[cloth, 1].mean() < -0.5  # the sheet, at rest before, is carried along (measured -0.64 m/s)
 
 
 @pytest.mark.slow  # exhaustive; covered by cloth in the liquid: the momentum exchange, default
