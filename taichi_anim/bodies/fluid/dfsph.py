@@ -10,7 +10,8 @@ the 2017 paper, with Akinci's boundary samples b: boundary.py)
 1. before the method moves the particles: the divergence solve (alg. 2) makes the velocities
    divergence-free: Drho_i/Dt = sum_j m_j (v_i - v_j).grad W_ij + sum_b psi_b v_i.grad W_ib, clamped to
    compression, gives kappa^v_i = (Drho_i/Dt) alpha_i / h, and every iteration applies
-   v_i -= h [ sum_j m_j (kappa_i + kappa_j) grad W_ij + sum_b psi_b kappa_i grad W_ib ]   (eq. 11, 12)
+   v_i -= h [ sum_j m_j (kappa_i + kappa_j) grad W_ij + sum_b psi_b kappa_i grad W_ib ]   (eq. 11, 12;
+   a liquid without bodies pushes off the walls' samples with 2 kappa_i: wall_pressure.py)
    until the mean of h Drho/Dt / rho0 is below the divergence tolerance;
 2. the method adds the non-pressure forces (gravity, ...) to the velocities (v*), and the solver adds
    XSPH viscosity (Monaghan, "On the problem of penetration in particle methods", JCP 1989, eq. 2.9,
